@@ -1,0 +1,31 @@
+"""ament_python package st_stereo: sub-pixel thermal stereo for two FLIR Lepton 2 cameras."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'st_stereo'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='st_stereo developers',
+    maintainer_email='st-stereo@example.invalid',
+    description='ST: sub-pixel stereo matching of low-resolution thermal images, ROS 2 nodes '
+                'for a ceiling rig of two FLIR Lepton 2 cameras.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'st-stereo = st_stereo.cli:main',
+        ],
+    },
+)

@@ -1,0 +1,171 @@
+"""
+Validated configuration of the ST matcher.
+
+One flat, frozen dataclass. Each field carries its description and its admissible range or
+choices in ``dataclasses.field(metadata=...)``: the same metadata validates the config, builds
+the command-line help and (in the node suite) the ROS parameter descriptors, so the three can
+never disagree.
+"""
+
+import dataclasses
+import math
+import typing
+
+# Reference defaults of the noise multiplier k per phase-congruency method (Kovesi's code).
+DEFAULT_NOISE_K = {'phasecong3': 2.0, 'monogenic': 3.0}
+
+
+def _field(default, description, *, low=None, high=None, choices=None, odd=False):
+    metadata = {'description': description, 'low': low, 'high': high, 'choices': choices,
+                'odd': odd}
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+@dataclasses.dataclass(frozen=True)
+class STConfig:
+    """
+    Parameters of the ST pipeline: features, rough matching, sub-pixel POC.
+
+    Every field is validated on construction (also by ``dataclasses.replace``); an invalid
+    value raises ``ValueError`` naming the field, the expected range and the value received.
+    """
+
+    # --- 1. Phase-congruency features (paper section 2.2; Kovesi phasecong3) ---------------
+    pc_method: str = _field(
+        'phasecong3', 'phase congruency: phasecong3 (oriented log-Gabor moments, default) or '
+        'monogenic (phasecongmono, M := PC; its gamma scale differs)',
+        choices=('phasecong3', 'monogenic'))
+    pc_scales: int = _field(4, 'number of log-Gabor scales (nscale)', low=2, high=8)
+    pc_orientations: int = _field(6, 'number of filter orientations (norient, phasecong3)',
+                                  low=1, high=16)
+    pc_min_wavelength: float = _field(3.0, 'wavelength of the smallest-scale filter, pixels',
+                                      low=2.0, high=40.0)
+    pc_mult: float = _field(2.1, 'scaling factor between successive filter wavelengths',
+                            low=1.1, high=5.0)
+    pc_sigma_onf: float = _field(0.55, 'log-Gabor bandwidth: sigma over centre frequency',
+                                 low=0.1, high=0.99)
+    pc_noise_k: float = _field(-1.0, 'noise threshold in standard deviations above the mean '
+                               'noise energy; negative = the method default (2 phasecong3, 3 '
+                               'monogenic)', low=-1.0, high=20.0)
+    pc_cutoff: float = _field(0.5, 'frequency-spread cut-off of the sigmoid weighting',
+                              low=0.0, high=1.0)
+    pc_gain: float = _field(10.0, 'sharpness g of the frequency-spread sigmoid', low=0.0,
+                            high=100.0)
+    pc_deviation_gain: float = _field(1.5, 'phase-deviation gain (monogenic only)', low=0.0,
+                                      high=10.0)
+    pc_periodic: bool = _field(True, 'use the periodic-plus-smooth FFT (recommended at 80x60)')
+    gamma: float = _field(0.1, 'feature threshold on the maximum moment M (paper: 0.3, 0.1, '
+                          '0.01)', low=0.0, high=1.0)
+
+    # --- 2. Rough matching (paper section 2.3) --------------------------------------------
+    similarity_window: int = _field(11, 'side of the Lades-similarity window on M, pixels (the '
+                                    'paper: 5; 11 measured best, see docs/accuracy.md)',
+                                    low=3, high=21, odd=True)
+    min_similarity: float = _field(0.7, 'minimum Lades similarity of an accepted match',
+                                   low=0.0, high=1.0)
+    candidate_ratio: float = _field(0.5, 'a right pixel is a candidate when its M exceeds '
+                                    'candidate_ratio * gamma', low=0.0, high=1.0)
+    disparity_min: int = _field(0, 'smallest disparity searched, pixels', low=0, high=1024)
+    disparity_max: int = _field(40, 'largest disparity searched, pixels', low=0, high=1024)
+    prior_radius: int = _field(3, 'search radius around a disparity prior, pixels', low=0,
+                               high=256)
+    uniqueness: bool = _field(True, 'one-to-one matching: a right point serves one left '
+                              'feature, the most similar (checked on sub-pixel positions)')
+    uniqueness_tolerance: float = _field(0.5, 'two matches collide when their sub-pixel right '
+                                         'positions are closer than this, pixels', low=0.0,
+                                         high=2.0)
+    left_right_check: bool = _field(True, 'left-right consistency check')
+    left_right_tolerance: int = _field(1, 'allowed disagreement of the right-to-left search, '
+                                       'pixels', low=0, high=8)
+    ordering: bool = _field(True, 'ordering constraint along each row')
+    continuity: bool = _field(True, 'continuity: reject disparities far from the local median')
+    continuity_max_jump: float = _field(2.0, 'largest allowed |d - local median|, pixels',
+                                        low=0.0, high=256.0)
+    continuity_radius: int = _field(3, 'half-side of the continuity neighbourhood, pixels',
+                                    low=1, high=32)
+    continuity_min_neighbours: int = _field(4, 'neighbours needed before continuity applies',
+                                            low=1, high=1000)
+
+    # --- 3. Sub-pixel phase-only correlation (paper section 2.4) ----------------------------
+    poc_window: int = _field(9, 'POC window side W, pixels', low=5, high=63, odd=True)
+    poc_band: str = _field('full', 'POC band limit: full (V = W) or takita (K = half of the '
+                           'half-width)', choices=('full', 'takita'))
+    poc_hann: bool = _field(True, 'half-sample Hann window before the FFT')
+    poc_source: str = _field('intensity', 'image the POC runs on: intensity (the input counts, '
+                             'measured best) or moments (M, the paper)',
+                             choices=('moments', 'intensity'))
+    poc_estimator: str = _field('recentred', 'sub-pixel estimator: nagashima (the paper, one '
+                                'least-squares fit) or recentred (re-centre the right window '
+                                'on the estimate by a Fourier shift and fit again)',
+                                choices=('nagashima', 'recentred'))
+    poc_iterations: int = _field(3, "fits of the recentred estimator (1 = the paper's)",
+                                 low=1, high=10)
+    poc_max_shift: float = _field(1.5, 'reject a sub-pixel correction larger than this, pixels',
+                                  low=0.1, high=4.0)
+
+    def __post_init__(self):
+        """Validate every field against its metadata."""
+        hints = typing.get_type_hints(type(self))
+        for field in dataclasses.fields(self):
+            _validate_field(field, hints[field.name], getattr(self, field.name))
+        if self.disparity_min > self.disparity_max:
+            raise ValueError(f'disparity_min ({self.disparity_min}) must not exceed '
+                             f'disparity_max ({self.disparity_max})')
+
+    @property
+    def noise_k(self):
+        """Noise multiplier k in effect (the method default when ``pc_noise_k`` < 0)."""
+        return DEFAULT_NOISE_K[self.pc_method] if self.pc_noise_k < 0 else self.pc_noise_k
+
+    @property
+    def poc_margin(self):
+        """Half-width of the POC window."""
+        return self.poc_window // 2
+
+    @classmethod
+    def from_mapping(cls, values):
+        """Build a config from a mapping, rejecting unknown keys by name."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f'unknown ST parameter(s): {", ".join(unknown)}; known: '
+                             f'{", ".join(sorted(known))}')
+        return cls(**dict(values))
+
+    def to_dict(self):
+        """Return the fields as a plain dict."""
+        return dataclasses.asdict(self)
+
+
+def describe_fields():
+    """Yield ``(name, type, default, metadata)`` for every config field, in declaration order."""
+    hints = typing.get_type_hints(STConfig)
+    for field in dataclasses.fields(STConfig):
+        yield field.name, hints[field.name], field.default, field.metadata
+
+
+def _validate_field(field, expected_type, value):
+    name = field.name
+    meta = field.metadata
+    if expected_type is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f'{name}: expected a bool, got {value!r}')
+        return
+    if expected_type is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f'{name}: expected an integer, got {value!r}')
+    elif expected_type is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f'{name}: expected a number, got {value!r}')
+        if not math.isfinite(value):
+            raise ValueError(f'{name}: expected a finite number, got {value!r}')
+    elif expected_type is str:
+        if not isinstance(value, str):
+            raise ValueError(f'{name}: expected a string, got {value!r}')
+    if meta.get('choices') and value not in meta['choices']:
+        raise ValueError(f'{name}: expected one of {", ".join(meta["choices"])}, got {value!r}')
+    low, high = meta.get('low'), meta.get('high')
+    if low is not None and value < low or high is not None and value > high:
+        raise ValueError(f'{name}: expected a value in [{low}, {high}], got {value!r}')
+    if meta.get('odd') and value % 2 != 1:
+        raise ValueError(f'{name}: expected an odd number, got {value!r}')

@@ -1,0 +1,262 @@
+"""
+ST: the sub-pixel thermal stereo matcher, one entry point for a rectified pair.
+
+``StereoMatcher(config, model).match(left, right)`` runs the three stages of the paper
+(Fig. 2): phase-congruency features, rough matching on rows, POC sub-pixel refinement, then
+triangulates when a stereo model is given. Every feature the pipeline drops is counted by
+the stage and the reason it was dropped.
+"""
+
+import csv
+import dataclasses
+import io
+import json
+import time
+
+import numpy as np
+
+from st_stereo.core.config import STConfig
+from st_stereo.core.phase_congruency import feature_strength
+from st_stereo.core.rough_matching import (enforce_uniqueness, REJECTION_KEYS, rough_match,
+                                           RoughMatches)
+from st_stereo.core.subpixel import refine_subpixel_poc, SUBPIXEL_REJECTION_KEYS
+from st_stereo.core.triangulation import triangulate
+
+MIN_IMAGE_SIDE = 16
+STAGES = ('features', 'rough_matching', 'subpixel', 'triangulation')
+
+
+def validate_image(image, name):
+    """
+    Check one image of a pair and return it as float64.
+
+    Raises
+    ------
+    ValueError
+        Naming the image and the problem: not 2-D, too small, not numeric, or non-finite.
+
+    """
+    array = np.asarray(image)
+    if array.ndim != 2:
+        raise ValueError(f'{name} image: expected a 2-D array (rows, cols), got shape '
+                         f'{array.shape}')
+    if min(array.shape) < MIN_IMAGE_SIDE:
+        raise ValueError(f'{name} image: expected at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} '
+                         f'pixels, got {array.shape[1]}x{array.shape[0]}')
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer)
+                                   or np.issubdtype(array.dtype, np.floating)):
+        raise ValueError(f'{name} image: expected integer or float pixels, got {array.dtype}')
+    array = array.astype(np.float64, copy=False)
+    if not np.isfinite(array).all():
+        bad = int((~np.isfinite(array)).sum())
+        raise ValueError(f'{name} image: {bad} non-finite pixel(s) (NaN or inf)')
+    return array
+
+
+def feature_mask(moments, gamma, margin):
+    """
+    Features: pixels with ``M > gamma`` (paper 2.2) whose window of half-side ``margin`` fits.
+
+    Returns
+    -------
+    features : ndarray of bool
+    border : int
+        Pixels above the threshold dropped because their window would leave the image.
+
+    """
+    above = moments > gamma
+    inside = np.zeros_like(above)
+    inside[margin:moments.shape[0] - margin, margin:moments.shape[1] - margin] = True
+    features = above & inside
+    return features, int(above.sum() - features.sum())
+
+
+@dataclasses.dataclass
+class MatchResult:
+    """
+    Matches of one rectified pair, one row per accepted match.
+
+    Attributes
+    ----------
+    x_left, y : ndarray, shape (n,)
+        Left pixel of each match (integer coordinates).
+    disparity : ndarray, shape (n,)
+        Sub-pixel disparity ``x_left - x_right`` (>= 0), pixels.
+    similarity : ndarray, shape (n,)
+        Lades similarity of the rough match.
+    poc_peak : ndarray, shape (n,)
+        Height of the POC peak (0..1): the confidence of the sub-pixel estimate.
+    points : ndarray, shape (n, 3) or None
+        X, Y, Z in metres in the left optical frame, when a stereo model was given.
+    counts : dict
+        Features, rough matches, matches, and every rejection by stage and reason.
+    timings_ms : dict
+        Wall time of each stage and the total, milliseconds.
+    feature_images : ndarray, shape (2, rows, cols)
+        M of the left and right image (diagnostics, overlays, evaluation).
+    rough : RoughMatches
+        The integer matches before sub-pixel refinement (evaluation of other refiners).
+
+    """
+
+    x_left: np.ndarray
+    y: np.ndarray
+    disparity: np.ndarray
+    similarity: np.ndarray
+    poc_peak: np.ndarray
+    points: np.ndarray
+    counts: dict
+    timings_ms: dict
+    image_shape: tuple
+    feature_images: np.ndarray = None
+    rough: RoughMatches = None
+
+    def __len__(self):
+        """Return the number of matches."""
+        return len(self.x_left)
+
+    @property
+    def x_right(self):
+        """Sub-pixel column of the match in the right image."""
+        return self.x_left - self.disparity
+
+    def records(self):
+        """Return the matches as a list of dicts (one per match, JSON-ready)."""
+        rows = []
+        for i in range(len(self)):
+            row = {'x_left': int(self.x_left[i]), 'y': int(self.y[i]),
+                   'disparity': float(self.disparity[i]),
+                   'x_right': float(self.x_right[i]),
+                   'similarity': float(self.similarity[i]),
+                   'poc_peak': float(self.poc_peak[i])}
+            if self.points is not None:
+                row.update(zip(('X', 'Y', 'Z'), map(float, self.points[i])))
+            rows.append(row)
+        return rows
+
+    def to_json(self):
+        """Return matches, counts and timings as a JSON document."""
+        return json.dumps({'image_shape': list(self.image_shape), 'counts': self.counts,
+                           'timings_ms': self.timings_ms, 'matches': self.records()},
+                          indent=1)
+
+    def to_csv(self):
+        """Return the matches as CSV text with a header row."""
+        fields = ['x_left', 'y', 'disparity', 'x_right', 'similarity', 'poc_peak']
+        if self.points is not None:
+            fields += ['X', 'Y', 'Z']
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator='\n')
+        writer.writeheader()
+        writer.writerows(self.records())
+        return buffer.getvalue()
+
+
+class StereoMatcher:
+    """
+    The ST pipeline for rectified pairs: features, rough matching, POC, triangulation.
+
+    Parameters
+    ----------
+    config : STConfig, optional
+        Validated parameters (defaults: the paper's W = 9, gamma = 0.1, chi = 6).
+    model : StereoModel, optional
+        Rectified geometry; when given, results carry 3-D points.
+
+    Examples
+    --------
+    >>> result = StereoMatcher().match(left, right)            # doctest: +SKIP
+    >>> result.disparity, result.counts['matches']             # doctest: +SKIP
+
+    """
+
+    def __init__(self, config=None, model=None):
+        self.config = STConfig() if config is None else config
+        if not isinstance(self.config, STConfig):
+            raise TypeError(f'config: expected STConfig, got {type(self.config).__name__}')
+        self.model = model
+
+    def feature_images(self, left, right):
+        """Feature images M of a validated pair, computed in one batch, shape (2, rows, cols)."""
+        return feature_strength(np.stack((left, right)), self.config)
+
+    def match(self, left, right, disparity_prior=None):
+        """
+        Match a rectified pair.
+
+        Parameters
+        ----------
+        left, right : array_like, shape (rows, cols)
+            Rectified images: raw counts (uint16, uint8) or float, same shape.
+        disparity_prior : None, float or ndarray (rows, cols), optional
+            Expected disparity (NaN = unknown), e.g. from the previous frame; restricts the
+            search to ``prior +- prior_radius``.
+
+        Returns
+        -------
+        MatchResult
+
+        """
+        started = time.perf_counter()
+        left = validate_image(left, 'left')
+        right = validate_image(right, 'right')
+        if left.shape != right.shape:
+            raise ValueError(f'image sizes differ: left {left.shape[1]}x{left.shape[0]}, '
+                             f'right {right.shape[1]}x{right.shape[0]}')
+        config = self.config
+        timings = {}
+        counts = {}
+
+        tick = time.perf_counter()
+        moments = self.feature_images(left, right)
+        margin = config.poc_window // 2
+        features, border = feature_mask(moments[0], config.gamma, margin)
+        counts['features'] = int(features.sum())
+        counts['features_border'] = border
+        timings['features'] = _elapsed_ms(tick)
+
+        tick = time.perf_counter()
+        rough = rough_match(moments[0], moments[1], features, config, disparity_prior,
+                            right_margin=margin)
+        counts['rough_matches'] = len(rough)
+        counts.update({f'rejected_{key}': rough.rejected[key] for key in REJECTION_KEYS})
+        timings['rough_matching'] = _elapsed_ms(tick)
+
+        tick = time.perf_counter()
+        if config.poc_source == 'moments':
+            poc_left, poc_right = moments[0], moments[1]
+        else:
+            poc_left, poc_right = left, right
+        refined = refine_subpixel_poc(poc_left, poc_right, rough.y, rough.x_left,
+                                      rough.disparity, config)
+        counts.update({f'rejected_{key}': refined.rejected[key]
+                       for key in SUBPIXEL_REJECTION_KEYS})
+        counts['clamped_to_zero'] = refined.clamped_to_zero
+        keep = refined.accepted
+        if config.uniqueness:
+            unique = enforce_uniqueness(rough.y[keep], rough.x_left[keep],
+                                        rough.x_left[keep] - refined.disparity[keep],
+                                        rough.similarity[keep], config.uniqueness_tolerance)
+            counts['rejected_uniqueness'] = int((~unique).sum())
+            keep[np.flatnonzero(keep)[~unique]] = False
+        else:
+            counts['rejected_uniqueness'] = 0
+        counts['matches'] = int(keep.sum())
+        timings['subpixel'] = _elapsed_ms(tick)
+
+        tick = time.perf_counter()
+        x_left, y = rough.x_left[keep], rough.y[keep]
+        disparity = refined.disparity[keep]
+        points = None
+        if self.model is not None:
+            points = triangulate(self.model, x_left, y, disparity)
+        timings['triangulation'] = _elapsed_ms(tick)
+        timings['total'] = _elapsed_ms(started)
+        return MatchResult(x_left=x_left, y=y, disparity=disparity,
+                           similarity=rough.similarity[keep], poc_peak=refined.peak_value[keep],
+                           points=points, counts=counts, timings_ms=timings,
+                           image_shape=left.shape, feature_images=moments, rough=rough)
+
+
+def _elapsed_ms(start):
+    return (time.perf_counter() - start) * 1e3

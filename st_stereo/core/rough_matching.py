@@ -1,0 +1,348 @@
+"""
+Rough (integer) matching of phase-congruency features along rectified rows (paper 2.3).
+
+A left feature at (y, x) is compared with every candidate right pixel (y, x - d), d in the
+disparity range, by the Lades similarity of the 5x5 windows of M around them (paper eq. 9).
+The similarity of all pixels at all disparities is one dense volume computed with box
+filters, so there is no loop over features. The constraints (similarity, uniqueness,
+left-right consistency, ordering, continuity) then prune the best candidates; each can be
+switched off and each counts what it rejects.
+"""
+
+import dataclasses
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+TINY = 1e-12
+
+REJECTION_KEYS = ('no_candidate', 'similarity', 'left_right', 'ordering', 'continuity')
+
+
+def lades_similarity(window_a, window_b):
+    """
+    Lades similarity of two windows: a cosine without mean removal (paper eq. 9).
+
+    ``S = sum_j a_j b_j / sqrt(sum_j a_j^2 sum_j b_j^2)``; 1 for identical (non-zero)
+    windows, 0 when either window is zero.
+
+    Parameters
+    ----------
+    window_a, window_b : ndarray, shape (..., k, k)
+        Windows of M (batched over leading axes).
+
+    Returns
+    -------
+    ndarray, shape (...)
+
+    References
+    ----------
+    M. Lades et al., "Distortion invariant object recognition in the dynamic link
+    architecture", IEEE Trans. Computers 42(3), 1993.
+
+    """
+    a = np.asarray(window_a, dtype=np.float64)
+    b = np.asarray(window_b, dtype=np.float64)
+    numerator = (a * b).sum(axis=(-2, -1))
+    denominator = np.sqrt((a * a).sum(axis=(-2, -1)) * (b * b).sum(axis=(-2, -1)))
+    return np.where(denominator > TINY, numerator / np.maximum(denominator, TINY), 0.0)
+
+
+def _box_mean(values, size):
+    # Zero outside the image: a window reaching beyond the border sees M = 0 there.
+    out = uniform_filter1d(values, size, axis=-1, mode='constant')
+    return uniform_filter1d(out, size, axis=-2, mode='constant')
+
+
+def shifted_stack(image, disparities):
+    """
+    Stack ``out[i, y, x] = image[y, x - disparities[i]]``, zero where ``x - d < 0``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, cols)
+        Image to shift.
+    disparities : ndarray of int, shape (D,)
+        Non-negative shifts.
+
+    Returns
+    -------
+    ndarray, shape (D, rows, cols)
+
+    """
+    rows, cols = image.shape
+    d_max = int(disparities.max())
+    padded = np.zeros((rows, cols + d_max), dtype=image.dtype)
+    padded[:, d_max:] = image
+    # Column c of the padded image is image column c - d_max; start d_max - d gives shift d.
+    starts = d_max - disparities
+    index = starts[:, None] + np.arange(cols)[None, :]
+    return np.ascontiguousarray(padded[:, index].transpose(1, 0, 2))
+
+
+def lades_similarity_volume(left_moments, right_moments, disparities, window):
+    """
+    Lades similarity of every left pixel with the right pixel ``d`` to its left, for all d.
+
+    ``S[i, y, x] = S(window of left at (y, x), window of right at (y, x - d_i))`` (paper eq.
+    9), with M taken as zero outside the images.
+
+    Returns
+    -------
+    ndarray, shape (D, rows, cols), float32
+
+    """
+    left = np.asarray(left_moments, dtype=np.float32)
+    right = np.asarray(right_moments, dtype=np.float32)
+    right_shifted = shifted_stack(right, disparities)
+    numerator = _box_mean(left[None] * right_shifted, window)
+    left_energy = _box_mean(left * left, window)
+    right_energy = shifted_stack(_box_mean(right * right, window), disparities)
+    # Box means of squares can round to tiny negatives in float32: clamp before the root.
+    denominator = np.sqrt(np.maximum(left_energy[None] * right_energy, np.float32(0.0)))
+    return numerator / np.maximum(denominator, np.float32(TINY))
+
+
+@dataclasses.dataclass
+class RoughMatches:
+    """Integer matches of left features: row, left column, integer disparity, similarity."""
+
+    y: np.ndarray
+    x_left: np.ndarray
+    disparity: np.ndarray
+    similarity: np.ndarray
+    rejected: dict
+
+    @property
+    def x_right(self):
+        """Column of the matched right pixel."""
+        return self.x_left - self.disparity
+
+    def subset(self, keep):
+        """Return the matches where ``keep`` is true (rejection counts are shared)."""
+        return RoughMatches(self.y[keep], self.x_left[keep], self.disparity[keep],
+                            self.similarity[keep], self.rejected)
+
+    def __len__(self):
+        """Return the number of matches."""
+        return len(self.y)
+
+
+def disparity_search_range(config, prior, shape):
+    """
+    Candidate disparities and a per-pixel admissibility mask from the range and the prior.
+
+    Parameters
+    ----------
+    config : STConfig
+        ``disparity_min``, ``disparity_max``, ``prior_radius``.
+    prior : None, float or ndarray (rows, cols)
+        Expected disparity; NaN where unknown. With a prior, only ``|d - prior| <=
+        prior_radius`` is searched (paper 2.3: a range from prior knowledge or the previous
+        frame).
+    shape : tuple
+        (rows, cols) of the images.
+
+    Returns
+    -------
+    disparities : ndarray of int, shape (D,)
+    admissible : ndarray of bool, shape (D, rows, cols) or (D, 1, 1)
+
+    """
+    rows, cols = shape
+    d_high = min(config.disparity_max, cols - 1)
+    disparities = np.arange(config.disparity_min, d_high + 1)
+    if prior is None:
+        return disparities, np.ones((len(disparities), 1, 1), dtype=bool)
+    prior = np.asarray(prior, dtype=np.float64)
+    if prior.ndim == 0:
+        prior = np.full((1, 1), float(prior))
+    elif prior.shape != (rows, cols):
+        raise ValueError(f'disparity prior: expected a scalar or shape {(rows, cols)}, got '
+                         f'{prior.shape}')
+    distance = np.abs(disparities[:, None, None] - prior[None])
+    admissible = (distance <= config.prior_radius) | np.isnan(prior)[None]
+    return disparities, admissible
+
+
+def _best_candidates(volume, valid):
+    masked = np.where(valid, volume, -np.inf)
+    best = masked.argmax(axis=0)
+    best_value = np.take_along_axis(masked, best[None], axis=0)[0]
+    return best, best_value
+
+
+def enforce_uniqueness(y, x_left, x_right, similarity, tolerance):
+    """
+    One-to-one matching: a right point serves at most one left feature (paper 2.3).
+
+    Two matches of one row collide when their right positions are closer than ``tolerance``
+    (sub-pixel positions, so neighbouring left pixels whose integer matches round onto the
+    same right pixel do not collide once refined). Of colliding matches the most similar
+    is kept.
+
+    Returns
+    -------
+    ndarray of bool, the matches kept
+
+    """
+    keep = np.ones(len(y), dtype=bool)
+    order = np.lexsort((x_right, y))
+    while True:
+        idx = order[keep[order]]
+        if len(idx) < 2:
+            return keep
+        collide = ((y[idx[1:]] == y[idx[:-1]])
+                   & (np.abs(x_right[idx[1:]] - x_right[idx[:-1]]) < tolerance))
+        if not collide.any():
+            return keep
+        first, second = idx[:-1][collide], idx[1:][collide]
+        loser = np.where(similarity[first] < similarity[second], first, second)
+        keep[loser] = False
+
+
+def left_right_consistent(volume, valid_left, disparities, y, x_right, disparity, tolerance):
+    """
+    Left-right check: the best left pixel for the matched right pixel is the original one.
+
+    For the right pixel (y, x_r), the left candidates are (y, x_r + d'); their similarity is
+    ``volume[d', y, x_r + d']``. The match survives when the best d' is within ``tolerance``
+    of its own disparity.
+    """
+    rows, cols = valid_left.shape
+    x_candidates = x_right[:, None] + disparities[None, :]
+    inside = x_candidates < cols
+    x_clipped = np.minimum(x_candidates, cols - 1)
+    d_index = np.broadcast_to(np.arange(len(disparities))[None, :], x_candidates.shape)
+    scores = volume[d_index, y[:, None], x_clipped]
+    ok = inside & valid_left[y[:, None], x_clipped]
+    scores = np.where(ok, scores, -np.inf)
+    best = disparities[scores.argmax(axis=1)]
+    return np.abs(best - disparity) <= tolerance
+
+
+def ordering_consistent(y, x_left, x_right, similarity):
+    """
+    Ordering constraint: along a row, right positions keep the order of the left ones.
+
+    Matches are sorted by (row, x_left); wherever two neighbours in a row invert their right
+    positions, the less similar of the two is dropped, repeatedly until no inversion is left.
+    Equal right positions are left to the uniqueness constraint.
+
+    Returns
+    -------
+    ndarray of bool, the matches kept
+
+    """
+    keep = np.ones(len(y), dtype=bool)
+    order = np.lexsort((x_left, y))
+    while True:
+        idx = order[keep[order]]
+        if len(idx) < 2:
+            return keep
+        same_row = y[idx[1:]] == y[idx[:-1]]
+        inverted = same_row & (x_right[idx[1:]] < x_right[idx[:-1]])
+        if not inverted.any():
+            return keep
+        first, second = idx[:-1][inverted], idx[1:][inverted]
+        loser = np.where(similarity[first] < similarity[second], first, second)
+        keep[loser] = False
+
+
+def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_neighbours):
+    """
+    Continuity: a disparity must be close to the median of its neighbours' (paper 2.3).
+
+    The neighbourhood is the (2 radius + 1)^2 square around the left feature, the match
+    itself excluded; matches with fewer than ``min_neighbours`` neighbours are kept.
+
+    Returns
+    -------
+    ndarray of bool, the matches kept
+
+    """
+    rows, cols = shape
+    grid = np.full((rows + 2 * radius, cols + 2 * radius), np.nan)
+    grid[y + radius, x_left + radius] = disparity
+    side = 2 * radius + 1
+    dy, dx = np.mgrid[0:side, 0:side]
+    neighbours = grid[y[:, None] + dy.ravel()[None], x_left[:, None] + dx.ravel()[None]]
+    neighbours[:, (side * side) // 2] = np.nan
+    count = np.sum(~np.isnan(neighbours), axis=1)
+    keep = np.ones(len(y), dtype=bool)
+    enough = count >= min_neighbours
+    if enough.any():
+        median = np.nanmedian(neighbours[enough], axis=1)
+        keep[enough] = np.abs(disparity[enough] - median) <= max_jump
+    return keep
+
+
+def rough_match(left_moments, right_moments, left_features, config, prior=None,
+                right_margin=0):
+    """
+    Integer matching of left features along rows under the paper's constraints.
+
+    Parameters
+    ----------
+    left_moments, right_moments : ndarray, shape (rows, cols)
+        Feature images M of the rectified pair.
+    left_features : ndarray of bool, shape (rows, cols)
+        Left pixels to match.
+    config : STConfig
+        Matching parameters and constraint switches.
+    prior : None, float or ndarray
+        Disparity prior (see ``disparity_search_range``).
+    right_margin : int
+        Right candidates must lie at least this far from the left and right image borders
+        (the sub-pixel window must fit).
+
+    Returns
+    -------
+    RoughMatches
+        With ``rejected`` counting, per constraint, the left features it removed. Uniqueness
+        is enforced after sub-pixel refinement (``enforce_uniqueness``).
+
+    """
+    rows, cols = left_moments.shape
+    rejected = dict.fromkeys(REJECTION_KEYS, 0)
+    disparities, admissible = disparity_search_range(config, prior, (rows, cols))
+    if not left_features.any() or len(disparities) == 0:
+        rejected['no_candidate'] = int(left_features.sum())
+        empty = np.zeros(0, dtype=np.int64)
+        return RoughMatches(empty, empty, empty, np.zeros(0), rejected)
+    volume = lades_similarity_volume(left_moments, right_moments, disparities,
+                                     config.similarity_window)
+    candidate_level = config.candidate_ratio * config.gamma
+    right_valid = right_moments > candidate_level
+    if right_margin:
+        right_valid[:, :right_margin] = False
+        right_valid[:, cols - right_margin:] = False
+    valid = shifted_stack(right_valid, disparities) & admissible
+    best, best_value = _best_candidates(volume, valid)
+
+    y, x_left = np.nonzero(left_features)
+    disparity = disparities[best[y, x_left]]
+    similarity = best_value[y, x_left].astype(np.float64)
+    has_candidate = np.isfinite(similarity)
+    rejected['no_candidate'] = int((~has_candidate).sum())
+    matches = RoughMatches(y, x_left, disparity, similarity, rejected).subset(has_candidate)
+
+    def apply(name, keep):
+        rejected[name] = int((~keep).sum())
+        return matches.subset(keep)
+
+    matches = apply('similarity', matches.similarity >= config.min_similarity)
+    if config.left_right_check:
+        valid_left = left_moments > candidate_level
+        matches = apply('left_right', left_right_consistent(
+            volume, valid_left, disparities, matches.y, matches.x_right, matches.disparity,
+            config.left_right_tolerance))
+    if config.ordering:
+        matches = apply('ordering', ordering_consistent(matches.y, matches.x_left,
+                                                        matches.x_right, matches.similarity))
+    if config.continuity:
+        matches = apply('continuity', continuity_consistent(
+            (rows, cols), matches.y, matches.x_left, matches.disparity.astype(np.float64),
+            config.continuity_radius, config.continuity_max_jump,
+            config.continuity_min_neighbours))
+    return matches

@@ -1,0 +1,1 @@
+"""Offline tools (evaluation, benchmarks, demo): they call the same core as the nodes."""

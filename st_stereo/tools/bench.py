@@ -1,0 +1,158 @@
+"""
+Speed benchmark: ST per stage vs OpenCV StereoSGBM and ORB + BFMatcher KNN, one table.
+
+Single-threaded: OMP / OpenBLAS / MKL threads = 1 (the process re-executes itself with them
+set if needed), ``cv2.setNumThreads(1)``, and every FFT of the core runs with ``workers=1``.
+Pairs are a real frame resized (pixel-area) to each size and shifted by the rig's disparity
+at 3.35 m, with the realistic noise / gain / offset difference.
+"""
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+THREAD_VARIABLES = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')
+
+
+def _ensure_single_thread():
+    if all(os.environ.get(name) == '1' for name in THREAD_VARIABLES):
+        return None
+    env = dict(os.environ, **dict.fromkeys(THREAD_VARIABLES, '1'))
+    return subprocess.run([sys.executable, '-m', 'st_stereo', *sys.argv[1:]],
+                          env=env).returncode
+
+
+def make_pair(frame, width, height, seed=0):
+    """Make a realistic synthetic pair of the given size from a frame (module docstring)."""
+    from st_stereo.core.image_io import resize_area
+    from st_stereo.tools.eval_subpixel import make_shifted_pair
+
+    image = resize_area(frame, width, height)
+    shift = 13.82 * width / 80.0    # fx B / Z at 3.35 m, scaled with the image width
+    return make_shifted_pair(image, shift, np.random.default_rng(seed), realistic=True)
+
+
+def to_u8(image):
+    """8-bit contrast-stretched copy, as SGBM and ORB require."""
+    from st_stereo.core.image_io import contrast_stretch_u8
+    return contrast_stretch_u8(image)
+
+
+def time_sgbm(left, right, width):
+    """Milliseconds of one StereoSGBM disparity map (8-bit conversion included)."""
+    import cv2
+    max_disparity = int(np.ceil(width / 2 / 16.0)) * 16
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=max_disparity, blockSize=5)
+    start = time.perf_counter()
+    sgbm.compute(to_u8(left), to_u8(right))
+    return (time.perf_counter() - start) * 1e3
+
+
+def time_orb_knn(left, right):
+    """Milliseconds of ORB detection on both images + BFMatcher KNN (k = 2) + ratio test."""
+    import cv2
+    orb = cv2.ORB_create(nfeatures=500, edgeThreshold=5, patchSize=9)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    start = time.perf_counter()
+    _, left_desc = orb.detectAndCompute(to_u8(left), None)
+    _, right_desc = orb.detectAndCompute(to_u8(right), None)
+    if left_desc is not None and right_desc is not None and len(right_desc) >= 2:
+        pairs = matcher.knnMatch(left_desc, right_desc, k=2)
+        [m for m in pairs if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
+    return (time.perf_counter() - start) * 1e3
+
+
+def _stats(values):
+    values = np.asarray(values)
+    return float(np.median(values)), float(np.percentile(values, 90))
+
+
+def benchmark_size(matcher, frame, width, height, pairs, progress):
+    """Per-stage ST timings and the peers' timings over ``pairs`` pairs of one size."""
+    left, right = make_pair(frame, width, height)
+    matcher.match(left, right)   # warm the filter-bank caches
+    stages = {}
+    sgbm, orb = [], []
+    matches = []
+    for _ in range(pairs):
+        result = matcher.match(left, right)
+        for key, value in result.timings_ms.items():
+            stages.setdefault(key, []).append(value)
+        matches.append(len(result))
+        sgbm.append(time_sgbm(left, right, width))
+        orb.append(time_orb_knn(left, right))
+        progress.update(1)
+    return {'stages': {k: _stats(v) for k, v in stages.items()}, 'sgbm': _stats(sgbm),
+            'orb_knn': _stats(orb), 'matches': float(np.median(matches))}
+
+
+def memory_run(matcher, frame, pairs, progress):
+    """RSS (MiB) after a warm-up and after ``pairs`` pairs at 80x60: flat means no leak."""
+    import psutil
+    process = psutil.Process()
+    left, right = make_pair(frame, 80, 60)
+    warmup = min(500, pairs // 10)
+    for _ in range(warmup):
+        matcher.match(left, right)
+        progress.update(1)
+    start = process.memory_info().rss / 2 ** 20
+    for _ in range(pairs - warmup):
+        matcher.match(left, right)
+        progress.update(1)
+    end = process.memory_info().rss / 2 ** 20
+    return start, end
+
+
+def print_table(rows):
+    """Print the benchmark table (Markdown)."""
+    print('| size | stage | ST median ms | ST p90 ms |')
+    print('|---|---|---|---|')
+    for size, row in rows.items():
+        for stage, (median, p90) in row['stages'].items():
+            print(f'| {size} | {stage} | {median:.2f} | {p90:.2f} |')
+    print()
+    print('| size | ST total median ms | StereoSGBM median ms | ORB+KNN median ms | '
+          'ST / SGBM | ST / ORB+KNN | ST matches |')
+    print('|---|---|---|---|---|---|---|')
+    for size, row in rows.items():
+        total = row['stages']['total'][0]
+        print(f'| {size} | {total:.2f} | {row["sgbm"][0]:.2f} | {row["orb_knn"][0]:.2f} | '
+              f'{total / row["sgbm"][0]:.2f} | {total / row["orb_knn"][0]:.2f} | '
+              f'{row["matches"]:.0f} |')
+
+
+def main(args):
+    """Run the benchmark described by the parsed ``st-stereo bench`` arguments."""
+    code = _ensure_single_thread()
+    if code is not None:
+        return code
+    import cv2
+    from tqdm import tqdm
+
+    from st_stereo.cli import config_from_assignments
+    from st_stereo.core.image_io import read_thermal_image
+    from st_stereo.core.matcher import StereoMatcher
+    from st_stereo.tools.data import shared_frame
+
+    cv2.setNumThreads(1)
+    frame = read_thermal_image(args.image or shared_frame()).astype(np.float64)
+    matcher = StereoMatcher(config_from_assignments(args.set))
+    sizes = []
+    for text in args.sizes.split(','):
+        width, _, height = text.partition('x')
+        sizes.append((int(width), int(height)))
+    rows = {}
+    with tqdm(total=args.pairs * len(sizes), desc='timing', unit='pair') as progress:
+        for width, height in sizes:
+            rows[f'{width}x{height}'] = benchmark_size(matcher, frame, width, height,
+                                                       args.pairs, progress)
+    print_table(rows)
+    if args.memory_pairs:
+        with tqdm(total=args.memory_pairs, desc='memory', unit='pair') as progress:
+            start, end = memory_run(matcher, frame, args.memory_pairs, progress)
+        print(f'\nmemory over {args.memory_pairs} pairs at 80x60: RSS {start:.1f} MiB after '
+              f'warm-up, {end:.1f} MiB at the end ({end - start:+.1f} MiB)')
+    return 0

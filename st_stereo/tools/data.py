@@ -1,0 +1,28 @@
+"""Where the shared real thermal frames are: ``$ST_STEREO_SHARED`` or ``../shared`` of the repo."""
+
+import os
+import pathlib
+
+FRAMES = ('people_lab_180x180.png', 'panel_flir_c2_80x60.png', 'ducks.png',
+          'floor_heating.png', 'moving_car.png')
+DEFAULT_FRAME = 'people_lab_180x180.png'
+
+
+def shared_thermal_dir():
+    """Directory of the shared thermal frames; a clear error when it cannot be found."""
+    candidates = []
+    if os.environ.get('ST_STEREO_SHARED'):
+        candidates.append(pathlib.Path(os.environ['ST_STEREO_SHARED']) / 'data' / 'thermal')
+    repo = pathlib.Path(__file__).resolve().parents[2]
+    candidates.append(repo.parent / 'shared' / 'data' / 'thermal')
+    for candidate in candidates:
+        if (candidate / DEFAULT_FRAME).is_file():
+            return candidate
+    raise FileNotFoundError('shared thermal frames not found (looked in '
+                            f'{", ".join(map(str, candidates))}); set ST_STEREO_SHARED to the '
+                            'shared/ directory or pass --image')
+
+
+def shared_frame(name=DEFAULT_FRAME):
+    """Path of one shared frame."""
+    return shared_thermal_dir() / name

@@ -1,0 +1,37 @@
+"""Shared fixtures: the real thermal frames of ../shared/data/thermal."""
+
+import numpy as np
+import pytest
+
+from st_stereo.core.image_io import read_thermal_image, resize_area
+from st_stereo.tools.data import FRAMES, shared_thermal_dir
+
+
+@pytest.fixture(scope='session')
+def thermal_dir():
+    """Return the shared frames' directory (a missing one fails loudly, never skips)."""
+    return shared_thermal_dir()
+
+
+@pytest.fixture(scope='session')
+def people_80x60(thermal_dir):
+    """Return people_lab_180x180.png resized to 80x60 (pixel-area averaging), float64."""
+    return resize_area(read_thermal_image(thermal_dir / 'people_lab_180x180.png'), 80, 60)
+
+
+@pytest.fixture(scope='session')
+def lepton_frame(thermal_dir):
+    """Return the native 80x60 Lepton-class frame (FLIR C2), raw uint16 counts."""
+    return read_thermal_image(thermal_dir / 'panel_flir_c2_80x60.png')
+
+
+@pytest.fixture(scope='session', params=FRAMES)
+def any_frame_80x60(request, thermal_dir):
+    """Return each shared frame resized to 80x60."""
+    return resize_area(read_thermal_image(thermal_dir / request.param), 80, 60)
+
+
+@pytest.fixture
+def rng():
+    """Return a seeded random generator."""
+    return np.random.default_rng(1234)

@@ -1,0 +1,80 @@
+"""camera_calibration YAML reader / writer and rectification."""
+
+import numpy as np
+import pytest
+from st_stereo.core.camera_calibration import (CalibrationError, CameraCalibration,
+                                               load_calibration, save_calibration)
+from st_stereo.core.rectification import StereoRectifier
+import yaml
+
+
+def rig_calibration(name, tx):
+    k = np.array([[83.9, 0, 39.5], [0, 83.9, 29.5], [0, 0, 1]])
+    p = np.array([[83.9, 0, 39.5, tx], [0, 83.9, 29.5, 0], [0, 0, 1, 0]])
+    return CameraCalibration(width=80, height=60, camera_name=name, camera_matrix=k,
+                             distortion_model='plumb_bob', distortion=np.zeros(5),
+                             rectification=np.eye(3), projection=p)
+
+
+def test_round_trip(tmp_path):
+    calibration = rig_calibration('left', 0.0)
+    path = tmp_path / 'left.yaml'
+    save_calibration(calibration, path)
+    document = yaml.safe_load(path.read_text())
+    assert document['camera_matrix'] == {'rows': 3, 'cols': 3,
+                                         'data': [83.9, 0, 39.5, 0, 83.9, 29.5, 0, 0, 1]}
+    assert document['distortion_coefficients']['rows'] == 1
+    loaded = load_calibration(path)
+    assert np.allclose(loaded.projection, calibration.projection)
+    assert loaded.distortion_model == 'plumb_bob' and loaded.camera_name == 'left'
+
+
+def _write(tmp_path, document):
+    path = tmp_path / 'cal.yaml'
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+@pytest.mark.parametrize('mutate, message', [
+    (lambda d: d.pop('projection_matrix'), "missing field 'projection_matrix'"),
+    (lambda d: d.update(image_width=0), 'image_width must be a positive integer'),
+    (lambda d: d.update(distortion_model='fisheye9'), 'distortion_model must be one of'),
+    (lambda d: d['camera_matrix'].update(rows=2), 'camera_matrix must be 3x3'),
+    (lambda d: d['projection_matrix'].update(data=[1, 2]), 'must hold rows\\*cols = 12'),
+    (lambda d: d['distortion_coefficients'].update(cols=4, data=[0, 0, 0, 0]),
+     'plumb_bob must hold 5 values'),
+])
+def test_bad_files_name_file_and_field(tmp_path, mutate, message):
+    from st_stereo.core.camera_calibration import calibration_document
+    document = calibration_document(rig_calibration('left', 0.0))
+    mutate(document)
+    path = _write(tmp_path, document)
+    with pytest.raises(CalibrationError, match=message) as error:
+        load_calibration(path)
+    assert str(path) in str(error.value)
+
+
+def test_missing_and_invalid_yaml(tmp_path):
+    with pytest.raises(CalibrationError, match='not found'):
+        load_calibration(tmp_path / 'none.yaml')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('camera_matrix: [unclosed')
+    with pytest.raises(CalibrationError, match='not valid YAML'):
+        load_calibration(bad)
+
+
+def test_identity_rectification_keeps_the_image(people_80x60):
+    rectifier = StereoRectifier(rig_calibration('left', 0.0),
+                                rig_calibration('right', -83.9 * 0.55))
+    left, right = rectifier.rectify(people_80x60, people_80x60)
+    assert np.allclose(left, people_80x60, atol=0.05 * people_80x60.std())
+    assert rectifier.model.baseline == pytest.approx(0.55)
+
+
+def test_rectifier_rejects_wrong_sizes_and_swapped_cameras(people_80x60):
+    rectifier = StereoRectifier(rig_calibration('left', 0.0),
+                                rig_calibration('right', -46.0))
+    with pytest.raises(ValueError, match='left image is 40x30'):
+        rectifier.rectify(people_80x60[:30, :40], people_80x60)
+    with pytest.raises(CalibrationError, match='P\\[0,3\\] must be -fx\\*B'):
+        StereoRectifier(rig_calibration('left', 0.0), rig_calibration('right', 46.0))
