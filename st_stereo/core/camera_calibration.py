@@ -125,10 +125,25 @@ def calibration_document(calibration):
             'projection_matrix': matrix(calibration.projection)}
 
 
+def calibration_yaml(calibration):
+    """Return camera_calibration YAML text, matrices as flow lists as camera_calibration writes."""
+    document = calibration_document(calibration)
+    lines = []
+    for key, value in document.items():
+        if isinstance(value, dict):
+            data = ', '.join(repr(v) for v in value['data'])
+            lines += [f'{key}:', f'  rows: {value["rows"]}', f'  cols: {value["cols"]}',
+                      f'  data: [{data}]']
+        else:
+            # A scalar dumps as 'value\n...\n': its first line is the YAML scalar.
+            lines.append(f'{key}: {yaml.safe_dump(value).splitlines()[0]}')
+    return '\n'.join(lines) + '\n'
+
+
 def save_calibration(calibration, path):
     """Write a CameraCalibration as camera_calibration YAML."""
     with open(os.fspath(path), 'w', encoding='utf-8') as stream:
-        yaml.safe_dump(calibration_document(calibration), stream, sort_keys=False)
+        stream.write(calibration_yaml(calibration))
 
 
 def check_stereo_pair(left, right, left_source='left', right_source='right'):
