@@ -118,10 +118,10 @@ class RowShifter:
     The de-ramped spectrum is computed once; each ``shift`` call costs one inverse FFT.
     """
 
-    def __init__(self, strips):
-        strips = np.asarray(strips, dtype=np.float64)
+    def __init__(self, strips, dtype=np.float64):
+        strips = np.asarray(strips, dtype=dtype)
         self.width = strips.shape[-1]
-        self.x = np.arange(self.width, dtype=np.float64)
+        self.x = np.arange(self.width, dtype=dtype)
         self.first = strips[..., :1]
         self.slope = (strips[..., -1:] - self.first) / (self.width - 1)
         periodic = strips - (self.first + self.slope * self.x)
@@ -130,8 +130,8 @@ class RowShifter:
 
     def shift(self, shifts, columns=None):
         """Return ``out(x) = strip(x + shift)``, optionally only the given column slice."""
-        shifts = np.asarray(shifts, dtype=np.float64).reshape(-1, 1, 1)
-        phase = np.exp(2j * np.pi * self.freqs * shifts)
+        shifts = np.asarray(shifts, dtype=self.x.dtype).reshape(-1, 1, 1)
+        phase = np.exp((2j * np.pi * self.freqs).astype(self.spectrum.dtype) * shifts)
         shifted = sfft.irfft(self.spectrum * phase, n=self.width, axis=-1, workers=1)
         x = self.x
         if columns is not None:

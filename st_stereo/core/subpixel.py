@@ -62,9 +62,10 @@ def band_half_width(window, band):
 
 @functools.lru_cache(maxsize=16)
 def _band_mask(window, half_width):
-    freqs = np.abs(sfft.fftfreq(window) * window)
-    keep = freqs <= half_width
-    mask = np.outer(keep, keep).astype(np.float64)
+    # Layout of rfft2 spectra: full axis -2, half axis -1.
+    rows = np.abs(sfft.fftfreq(window) * window) <= half_width
+    cols = np.abs(sfft.rfftfreq(window) * window) <= half_width
+    mask = np.outer(rows, cols).astype(np.float32)
     mask.setflags(write=False)
     return mask
 
@@ -76,23 +77,28 @@ def window_spectra(windows, hann=True):
     Removing the mean first makes the POC blind to an offset between the cameras; the gain
     cancels in the normalisation of eq. 10.
     """
-    windows = np.asarray(windows, dtype=np.float64)
+    windows = np.asarray(windows, dtype=np.float32)
     windows = windows - windows.mean(axis=(-2, -1), keepdims=True)
     if hann:
         windows = windows * half_sample_hann(windows.shape[-1])
-    return sfft.fft2(windows, workers=1)
+    # Real windows: the half spectrum (rfft2) carries everything, at half the cost.
+    return sfft.rfft2(windows, workers=1)
 
 
 def poc_from_spectra(left_spectra, right_spectra, band='full'):
-    """POC surfaces ``fftshift(real(ifft2(R)))``, ``R = F_R conj(F_L) / |.|`` (eqs. 10-11)."""
-    size = left_spectra.shape[-1]
+    """
+    POC surfaces ``real(ifft2(R))``, ``R = F_R conj(F_L) / |.|`` (eqs. 10-11), zero lag first.
+
+    The spectra are rfft2 half spectra of real windows; the surface is real (unshifted:
+    lag ``k`` at index ``k mod W``).
+    """
+    size = left_spectra.shape[-2]
     cross = right_spectra * np.conj(left_spectra)
-    cross /= np.maximum(np.abs(cross), 1e-20)
+    cross /= np.maximum(np.abs(cross), np.float32(1e-20))
     half = band_half_width(size, band)
     if half < size // 2:
         cross *= _band_mask(size, half)
-    surface = sfft.ifft2(cross, workers=1).real
-    return sfft.fftshift(surface, axes=(-2, -1))
+    return sfft.irfft2(cross, s=(size, size), workers=1)
 
 
 def phase_only_correlation(left_windows, right_windows, band='full', hann=True):
@@ -118,8 +124,9 @@ def phase_only_correlation(left_windows, right_windows, band='full', hann=True):
         POC surfaces, zero lag at index ``W // 2``.
 
     """
-    return poc_from_spectra(window_spectra(left_windows, hann),
-                            window_spectra(right_windows, hann), band)
+    surface = poc_from_spectra(window_spectra(left_windows, hann),
+                               window_spectra(right_windows, hann), band)
+    return sfft.fftshift(surface, axes=(-2, -1))
 
 
 def nagashima_peak_offset(profiles, peak, band_ratio):
@@ -183,8 +190,8 @@ class SubpixelResult:
 def extract_windows(image, y, x, size):
     """Gather ``size x size`` windows of an image centred at integer (y, x), shape (n, W, W)."""
     half = size // 2
-    offsets = np.arange(-half, half + 1)
-    return image[(y[:, None] + offsets)[:, :, None], (x[:, None] + offsets)[:, None, :]]
+    blocks = np.lib.stride_tricks.sliding_window_view(image, (size, size))
+    return blocks[y - half, x - half]
 
 
 def extract_strips(image, y, x, size, margin):
@@ -194,21 +201,23 @@ def extract_strips(image, y, x, size, margin):
     Columns outside the image are filled by symmetric reflection.
     """
     half = size // 2
-    cols = image.shape[1]
-    rows_index = (y[:, None] + np.arange(-half, half + 1))[:, :, None]
-    cols_index = x[:, None] + np.arange(-half - margin, half + margin + 1)
-    cols_index = np.abs(cols_index)
-    cols_index = np.where(cols_index >= cols, 2 * cols - 1 - cols_index, cols_index)
-    return image[rows_index, cols_index[:, None, :]]
+    reach = half + margin
+    padded = np.pad(image, ((0, 0), (reach, reach)), mode='symmetric')
+    blocks = np.lib.stride_tricks.sliding_window_view(padded, (size, size + 2 * margin))
+    return blocks[y - half, x - half - margin + reach]
 
 
 def _poc_offsets(left_spectra, right_windows, config):
     surfaces = poc_from_spectra(left_spectra, window_spectra(right_windows, config.poc_hann),
                                 config.poc_band)
     n, size, _ = surfaces.shape
+    half = size // 2
     flat_peak = surfaces.reshape(n, -1).argmax(axis=1)
     peak_row, peak_col = np.divmod(flat_peak, size)
-    profiles = surfaces[np.arange(n), peak_row]
+    # Unshifted surfaces: reorder the peak row so that lag 0 sits at index W // 2.
+    centred = (np.arange(size) - half) % size
+    profiles = surfaces[np.arange(n)[:, None], peak_row[:, None], centred[None, :]]
+    peak_col = (peak_col + half) % size
     peak_value = profiles[np.arange(n), peak_col]
     inside = (peak_col >= 3) & (peak_col <= size - 4)
     safe_peak = np.where(inside, peak_col, size // 2)
@@ -256,7 +265,7 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
         total = delta
     else:
         strips = extract_strips(right_image, y, x_right, size, RECENTRE_MARGIN)
-        shifter = RowShifter(strips)
+        shifter = RowShifter(strips, np.float32)
         centre = slice(RECENTRE_MARGIN, RECENTRE_MARGIN + size)
         total = np.zeros(n)
         for iteration in range(iterations):
