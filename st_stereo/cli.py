@@ -6,6 +6,7 @@ Command line ``st-stereo`` (also ``python -m st_stereo``).
     st-stereo eval subpixel --image IMG [...]
     st-stereo bench [...]
     st-stereo demo [...]
+    st-stereo lepton simulate|decode|bench [...]
 
 Every ST parameter can be set with ``--set NAME=VALUE`` (see ``st-stereo params``).
 Errors in the input are reported as one line naming the file and the problem, exit code 2.
@@ -272,6 +273,9 @@ def build_parser():
     p.add_argument('--image', default=None, help='source frame (default: a shared frame)')
     _add_config_option(p)
     p.set_defaults(handler=command_bench)
+
+    from st_stereo.lepton.tools import add_parser as add_lepton_parser
+    add_lepton_parser(sub)
 
     p = sub.add_parser('demo', help='run ST on a simulated pair sequence (the main job)')
     p.add_argument('--frames', type=int, default=40)

@@ -97,17 +97,22 @@ def sad_parabola(left, right, y, x_left, d_int, size):
     Parabola through the SAD costs of W x W windows at the best integer disparity +- 1.
 
     The integer disparity is re-chosen in ``d_int +- 1`` (as block matchers do), then
-    ``d = d* + (C(-1) - C(+1)) / (2 (C(-1) - 2 C(0) + C(+1)))``.
+    ``d = d* + (C(-1) - C(+1)) / (2 (C(-1) - 2 C(0) + C(+1)))``. Windows have their mean
+    removed (zero-mean SAD), the fair form for two cameras with different offsets: block
+    matchers prefilter for the same reason (OpenCV StereoBM normalises, SGBM uses a Sobel
+    prefilter).
     """
     half = size // 2
     cols = right.shape[1]
     left_windows = extract_windows(left, y, x_left, size)
+    left_windows = left_windows - left_windows.mean(axis=(1, 2), keepdims=True)
     steps = np.arange(-2, 3)
     costs = np.full((len(y), len(steps)), np.inf)
     for j, step in enumerate(steps):
         x_right = x_left - d_int - step
         ok = (x_right - half >= 0) & (x_right + half < cols)
         rw = extract_windows(right, y[ok], x_right[ok], size)
+        rw = rw - rw.mean(axis=(1, 2), keepdims=True)
         costs[ok, j] = np.abs(left_windows[ok] - rw).sum(axis=(1, 2))
     inner = costs[:, 1:4]
     best = inner.argmin(axis=1) + 1

@@ -1,0 +1,305 @@
+"""
+Raw VoSPI captures: the bytes exactly as read, with host timestamps, and their replay.
+
+Format (little-endian): magic ``STLEPCAP``, version (u16), header length (u32), a JSON header
+(packet_bytes, telemetry, spi_hz, ...), then records: ``b'R'`` + time (f64) + length (u32) +
+bytes for a read, ``b'I'`` + time (f64) + seconds (f64) for an idle. A plain file of
+concatenated SPI bytes (no header, no stamps), as other tools write, replays too: its times are
+synthesised from the byte position at the given SPI clock.
+"""
+
+import json
+import os
+import struct
+
+import numpy as np
+
+from st_stereo.lepton.packets import (is_discard, packet_crc, packet_number,
+                                      RAW14_PACKET_BYTES, RGB888_PACKET_BYTES)
+from st_stereo.lepton.reader import EndOfStream, LeptonReader
+from st_stereo.lepton.telemetry import parse_telemetry_row_a
+
+MAGIC = b'STLEPCAP'
+VERSION = 1
+READ_RECORD = struct.Struct('<cdI')
+IDLE_RECORD = struct.Struct('<cdd')
+
+
+class CaptureError(ValueError):
+    """A capture file is missing, truncated, garbage, or in an unsupported mode."""
+
+
+class CaptureWriter:
+    """Append reads and idles of a transport to a capture file."""
+
+    def __init__(self, path, header):
+        self.path = os.fspath(path)
+        self._stream = open(self.path, 'wb')
+        text = json.dumps(dict(header)).encode('utf-8')
+        self._stream.write(MAGIC + struct.pack('<HI', VERSION, len(text)) + text)
+
+    def read(self, stamp, data):
+        """Record one read."""
+        self._stream.write(READ_RECORD.pack(b'R', stamp, len(data)) + data)
+
+    def idle(self, stamp, seconds):
+        """Record an idle period: a resync or a pause."""
+        self._stream.write(IDLE_RECORD.pack(b'I', stamp, seconds))
+
+    def close(self):
+        """Flush and close."""
+        self._stream.close()
+
+
+class RecordingTransport:
+    """Wrap a transport and record every read and idle of it, unchanged."""
+
+    def __init__(self, inner, writer):
+        self.inner = inner
+        self.writer = writer
+        self.packet_bytes = inner.packet_bytes
+        self.max_read_bytes = inner.max_read_bytes
+        self.seconds_per_byte = inner.seconds_per_byte
+
+    def now(self):
+        """Time of the wrapped transport."""
+        return self.inner.now()
+
+    def read(self, nbytes):
+        """Read through and record."""
+        stamp = self.inner.now()
+        data = self.inner.read(nbytes)
+        self.writer.read(stamp, data)
+        return data
+
+    def idle(self, seconds):
+        """Idle through and record."""
+        self.writer.idle(self.inner.now(), seconds)
+        self.inner.idle(seconds)
+
+    def wait(self, seconds):
+        """Pause through and record as an idle."""
+        self.writer.idle(self.inner.now(), seconds)
+        self.inner.wait(seconds)
+
+
+def read_capture(path):
+    """
+    Load a capture: (header dict, byte stream, per-byte-offset read times).
+
+    A file without the magic is taken as plain concatenated SPI bytes (header {}, no times).
+
+    Raises
+    ------
+    CaptureError
+        Missing file, truncated record, unknown record type, bad header.
+
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise CaptureError(f'{path}: no such capture file')
+    with open(path, 'rb') as stream:
+        blob = stream.read()
+    if not blob.startswith(MAGIC):
+        return {}, blob, None
+    offset = len(MAGIC)
+    if len(blob) < offset + 6:
+        raise CaptureError(f'{path}: truncated header')
+    version, length = struct.unpack_from('<HI', blob, offset)
+    if version != VERSION:
+        raise CaptureError(f'{path}: capture version {version}, this reader knows {VERSION}')
+    offset += 6
+    try:
+        header = json.loads(blob[offset:offset + length].decode('utf-8'))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise CaptureError(f'{path}: unreadable capture header') from None
+    offset += length
+    chunks, starts, offsets = [], [], []
+    total = 0
+    while offset < len(blob):
+        kind = blob[offset:offset + 1]
+        if kind == b'R':
+            if offset + READ_RECORD.size > len(blob):
+                raise CaptureError(f'{path}: truncated read record at byte {offset}')
+            _, stamp, size = READ_RECORD.unpack_from(blob, offset)
+            offset += READ_RECORD.size
+            if offset + size > len(blob):
+                raise CaptureError(f'{path}: truncated read record at byte {offset} '
+                                   f'({size} bytes announced, {len(blob) - offset} present)')
+            chunks.append(blob[offset:offset + size])
+            starts.append(stamp)
+            offsets.append(total)
+            total += size
+            offset += size
+        elif kind == b'I':
+            if offset + IDLE_RECORD.size > len(blob):
+                raise CaptureError(f'{path}: truncated idle record at byte {offset}')
+            offset += IDLE_RECORD.size
+        else:
+            raise CaptureError(f'{path}: unknown record type {kind!r} at byte {offset}')
+    return header, b''.join(chunks), (np.array(offsets), np.array(starts))
+
+
+def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
+    """Byte offset (0..packet_bytes-1) at which most probed packets have a valid CRC."""
+    best, best_offset = -1, 0
+    for offset in range(packet_bytes):
+        valid = 0
+        end = min(len(data), offset + probe_packets * packet_bytes)
+        for start in range(offset, end - packet_bytes + 1, packet_bytes):
+            packet = data[start:start + packet_bytes]
+            packet_id = (packet[0] << 8) | packet[1]
+            if not is_discard(packet_id) and packet_crc(packet) == ((packet[2] << 8) | packet[3]):
+                valid += 1
+        if valid > best:
+            best, best_offset = valid, offset
+    return best_offset, best
+
+
+def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
+    """
+    Telemetry mode of a stream: 'off' (60 packets a frame), 'header' or 'footer' (63).
+
+    With 63 packets, row A holds a frame counter that never decreases from frame to frame:
+    the mode is the one whose candidate row A (packet 0 or packet 60) behaves so.
+
+    Raises
+    ------
+    CaptureError
+        When the stream holds no valid video packet at all.
+
+    """
+    offset, valid = find_alignment(data, packet_bytes)
+    if valid == 0:
+        raise CaptureError('no valid Lepton packet found (not a VoSPI Raw14 stream?)')
+    numbers, rows = [], {}
+    for start in range(offset, len(data) - packet_bytes + 1, packet_bytes):
+        packet = data[start:start + packet_bytes]
+        packet_id = (packet[0] << 8) | packet[1]
+        if is_discard(packet_id) or packet_crc(packet) != ((packet[2] << 8) | packet[3]):
+            continue
+        number = packet_number(packet_id)
+        numbers.append(number)
+        if number in (0, 60):
+            rows.setdefault(number, []).append(packet[4:])
+    if max(numbers) <= 59:
+        return 'off'
+    scores = {}
+    for mode, number in (('header', 0), ('footer', 60)):
+        counters = [parse_telemetry_row_a(p).frame_counter for p in rows.get(number, [])]
+        steps = np.diff(counters) if len(counters) > 1 else np.zeros(0)
+        scores[mode] = float(np.mean((steps >= 0) & (steps <= 3))) if len(steps) else 0.0
+    return max(scores, key=scores.get)
+
+
+class ReplayTransport:
+    """Replay a byte stream through the reader; stamps from the recorded read times."""
+
+    def __init__(self, data, times=None, spi_hz=20e6, packet_bytes=RAW14_PACKET_BYTES,
+                 start_offset=0):
+        self.data = data
+        self.position = start_offset
+        self.times = times
+        self.packet_bytes = packet_bytes
+        self.max_read_bytes = 1 << 20
+        self.seconds_per_byte = 8.0 / spi_hz
+        self._clock = 0.0
+
+    def now(self):
+        """Time of the byte about to be read (recorded, or synthesised)."""
+        if self.times is None:
+            return self.position * self.seconds_per_byte + self._clock
+        offsets, starts = self.times
+        index = int(np.searchsorted(offsets, self.position, side='right')) - 1
+        if index < 0:
+            return float(starts[0]) + self._clock
+        return float(starts[index] + (self.position - offsets[index]) * self.seconds_per_byte
+                     ) + self._clock
+
+    def _record_end(self):
+        offsets = self.times[0]
+        index = int(np.searchsorted(offsets, self.position, side='right'))
+        return int(offsets[index]) if index < len(offsets) else len(self.data)
+
+    def read(self, nbytes):
+        """Return the next bytes of the stream, never across a recorded read; fewer at the end."""
+        end = self.position + nbytes
+        if self.times is not None:
+            end = min(end, self._record_end())
+        chunk = self.data[self.position:end]
+        self.position += len(chunk)
+        return chunk
+
+    def idle(self, seconds):
+        """
+        Skip to where the live reader resumed after a resync or pause.
+
+        A recording holds what followed the idle; the bytes of the current read that the live
+        reader dropped when it resynchronised are skipped, as they were live. For synthesised
+        times only the clock moves on.
+        """
+        if self.times is None:
+            self._clock += seconds
+        elif self.position not in set(self.times[0].tolist()):
+            self.position = self._record_end()
+
+    def wait(self, seconds):
+        """As ``idle``."""
+        self.idle(seconds)
+
+
+def decode_capture(path, telemetry=None, spi_hz=None):
+    """
+    Decode every unique frame of a capture (ours or plain SPI bytes).
+
+    Returns
+    -------
+    frames : list of LeptonFrame
+    counters : dict
+    telemetry : str
+        The mode used (given, from the header, or detected).
+
+    """
+    header, data, times = read_capture(path)
+    packet_bytes = header.get('packet_bytes', RAW14_PACKET_BYTES)
+    if packet_bytes == RGB888_PACKET_BYTES or header.get('format') == 'rgb888':
+        raise CaptureError(f'{path}: RGB888 video (244-byte packets) is not supported: set the '
+                           f'camera to Raw14')
+    if packet_bytes != RAW14_PACKET_BYTES:
+        raise CaptureError(f'{path}: packet size {packet_bytes} bytes; only Raw14 '
+                           f'({RAW14_PACKET_BYTES}) is supported')
+    if len(data) < packet_bytes:
+        raise CaptureError(f'{path}: {len(data)} bytes: shorter than one packet')
+    try:
+        mode = telemetry or header.get('telemetry') or detect_telemetry_mode(data)
+    except CaptureError as error:
+        raise CaptureError(f'{path}: {error}') from None
+    start = 0 if times is not None else find_alignment(data)[0]
+    transport = ReplayTransport(data, times, spi_hz or header.get('spi_hz', 20e6),
+                                start_offset=start)
+    reader = LeptonReader(transport, telemetry=mode, frame_gap_wait=False, no_video_s=1e9)
+    frames = []
+    try:
+        while True:
+            frame = reader.read_frame(timeout_s=1e9)
+            if frame is None:
+                break
+            frames.append(frame)
+    except EndOfStream:
+        pass
+    return frames, reader.counters.as_dict(), mode
+
+
+def save_frames_npz(path, frames, counters, telemetry_mode):
+    """Write decoded frames, stamps, telemetry fields and counters to an .npz file."""
+    pixels = np.stack([f.pixels for f in frames]) if frames else np.zeros((0, 60, 80),
+                                                                          np.uint16)
+    fields = {'frames': pixels, 'stamps': np.array([f.stamp for f in frames]),
+              'ffc_in_progress': np.array([f.ffc_in_progress for f in frames]),
+              'counters': np.array(json.dumps(counters)),
+              'telemetry_mode': np.array(telemetry_mode)}
+    if frames and frames[0].telemetry is not None:
+        fields['frame_counter'] = np.array([f.telemetry.frame_counter for f in frames])
+        fields['fpa_temperature_k'] = np.array([f.telemetry.fpa_temperature_k for f in frames])
+        fields['ffc_state'] = np.array([f.telemetry.ffc_state for f in frames])
+    np.savez_compressed(path, **fields)

@@ -1,0 +1,126 @@
+"""
+Stereo pairing of two free-running cameras by nearest stamp.
+
+Two Leptons run on independent clocks and cannot be hardware-locked, so their unique frames
+(period ~113 ms) arrive with an arbitrary, slowly drifting offset. ``PairSynchronizer`` makes
+one-to-one pairs of the nearest stamps within ``max_delta``, gives both images one stamp (the
+midpoint), drops the unmatched frames and counts them, and keeps skew statistics.
+"""
+
+import collections
+import dataclasses
+import math
+
+
+@dataclasses.dataclass
+class StereoPair:
+    """Left and right frames of one pair, with the pair's single stamp and its skew."""
+
+    left: object
+    right: object
+    stamp: float
+    skew: float          # right stamp - left stamp, seconds
+
+
+@dataclasses.dataclass
+class PairingCounters:
+    """Pairs made, frames dropped per side, and skew statistics (seconds)."""
+
+    pairs: int = 0
+    dropped_left: int = 0
+    dropped_right: int = 0
+    skew_sum: float = 0.0
+    skew_abs_max: float = 0.0
+
+    @property
+    def skew_mean(self):
+        """Mean skew (right - left) of the pairs made."""
+        return self.skew_sum / self.pairs if self.pairs else float('nan')
+
+    def as_dict(self):
+        """Return the counters as a plain dict."""
+        out = dataclasses.asdict(self)
+        out['skew_mean'] = self.skew_mean
+        return out
+
+
+class PairSynchronizer:
+    """
+    One-to-one nearest-stamp pairing of two frame streams.
+
+    Frames are pushed per side in stamp order (each object has a ``stamp`` attribute).
+    A frame is decided as soon as it is known whether a better partner can still come: the
+    other side has a frame later than ``stamp + max_delta``, or the frame is older than the
+    newest frame of the other side by more than ``max_delta``.
+    """
+
+    def __init__(self, max_delta=0.05):
+        if not (max_delta > 0 and math.isfinite(max_delta)):
+            raise ValueError(f'max_delta: expected a positive number of seconds, got '
+                             f'{max_delta!r}')
+        self.max_delta = max_delta
+        self.queues = {'left': collections.deque(), 'right': collections.deque()}
+        self.counters = PairingCounters()
+        self._last = {'left': -math.inf, 'right': -math.inf}
+
+    def push(self, side, frame):
+        """Add a frame of one side; returns the list of pairs that became decidable."""
+        if side not in self.queues:
+            raise ValueError(f'side: expected left or right, got {side!r}')
+        if frame.stamp < self._last[side]:
+            raise ValueError(f'{side} stamps must not go back in time: {frame.stamp} after '
+                             f'{self._last[side]}')
+        self._last[side] = frame.stamp
+        self.queues[side].append(frame)
+        return self._drain()
+
+    def _drain(self):
+        pairs = []
+        left, right = self.queues['left'], self.queues['right']
+        while left and right:
+            a, b = left[0], right[0]
+            if abs(a.stamp - b.stamp) <= self.max_delta:
+                # Each head may have a nearer partner next in the other queue.
+                if len(right) > 1 and abs(right[1].stamp - a.stamp) < abs(b.stamp - a.stamp):
+                    right.popleft()
+                    self.counters.dropped_right += 1
+                    continue
+                if len(left) > 1 and abs(left[1].stamp - b.stamp) < abs(a.stamp - b.stamp):
+                    left.popleft()
+                    self.counters.dropped_left += 1
+                    continue
+                if not self._settled(a, 'right') or not self._settled(b, 'left'):
+                    break
+                left.popleft()
+                right.popleft()
+                pairs.append(self._pair(a, b))
+            elif a.stamp < b.stamp:
+                left.popleft()
+                self.counters.dropped_left += 1
+            else:
+                right.popleft()
+                self.counters.dropped_right += 1
+        return pairs
+
+    def _settled(self, frame, other_side):
+        # Stamps arrive in order, so distances to the other side's frames fall then rise: the
+        # head's partner is final once the other side holds a second frame, or has already
+        # seen a stamp at or after this frame's.
+        return len(self.queues[other_side]) > 1 or self._last[other_side] >= frame.stamp
+
+    def _pair(self, left, right):
+        skew = right.stamp - left.stamp
+        counters = self.counters
+        counters.pairs += 1
+        counters.skew_sum += skew
+        counters.skew_abs_max = max(counters.skew_abs_max, abs(skew))
+        return StereoPair(left, right, 0.5 * (left.stamp + right.stamp), skew)
+
+    def flush(self):
+        """Drop what is left (end of stream); returns the number of frames dropped."""
+        dropped = len(self.queues['left']) + len(self.queues['right'])
+        self.counters.dropped_left += len(self.queues['left'])
+        self.counters.dropped_right += len(self.queues['right'])
+        self.queues['left'].clear()
+        self.queues['right'].clear()
+        return dropped

@@ -1,0 +1,141 @@
+"""
+Command-line tools of the Lepton layer: simulate a capture, decode a capture, benchmark.
+
+``st-stereo lepton simulate`` writes a raw capture of one simulated camera (optionally with
+faults); ``st-stereo lepton decode`` turns any capture (ours, or plain concatenated SPI bytes)
+into frames, stamps, telemetry and counters; ``st-stereo lepton bench`` measures parsing and
+assembly speed against real time for two cameras.
+"""
+
+import json
+import time
+
+from st_stereo.lepton.capture import (CaptureWriter, decode_capture, RecordingTransport,
+                                      save_frames_npz)
+from st_stereo.lepton.reader import LeptonReader
+from st_stereo.lepton.simulator import FAULT_KINDS, FaultPlan, LeptonSimulator, \
+    SyntheticSceneSource
+
+
+def parse_faults(text):
+    """Parse ``kind=rate,kind=rate`` into a FaultPlan."""
+    rates = {}
+    for item in filter(None, (text or '').split(',')):
+        kind, sep, rate = item.partition('=')
+        if not sep:
+            raise ValueError(f'--faults: expected kind=rate, got {item!r} (kinds: '
+                             f'{", ".join(FAULT_KINDS)})')
+        rates[kind.strip()] = float(rate)
+    return FaultPlan(rates)
+
+
+def simulate_capture(path, seconds, telemetry='off', faults=None, seed=0, plain=False):
+    """Record ``seconds`` of one simulated camera read by the reader; returns the counters."""
+    camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry=telemetry, faults=faults,
+                             seed=seed, phase_s=0.011)
+    if plain:
+        chunks = []
+
+        class _Plain:
+            def read(self, stamp, data):
+                chunks.append(data)
+
+            def idle(self, stamp, seconds):
+                pass
+
+            def close(self):
+                with open(path, 'wb') as stream:
+                    stream.write(b''.join(chunks))
+        writer = _Plain()
+    else:
+        writer = CaptureWriter(path, {'packet_bytes': camera.packet_bytes,
+                                      'telemetry': telemetry, 'spi_hz': 20e6,
+                                      'source': 'st-stereo lepton simulate'})
+    reader = LeptonReader(RecordingTransport(camera, writer), telemetry=telemetry,
+                          frame_gap_wait=not plain)
+    try:
+        while camera.now() < seconds:
+            reader.read_frame(timeout_s=1.0)
+    finally:
+        writer.close()
+    return reader.counters.as_dict()
+
+
+def command_simulate(args):
+    """``st-stereo lepton simulate``."""
+    counters = simulate_capture(args.out, args.seconds, args.telemetry,
+                                parse_faults(args.faults), args.seed, args.plain)
+    print(json.dumps(counters, indent=1))
+    return 0
+
+
+def command_decode(args):
+    """``st-stereo lepton decode``: frames, stamps, telemetry and counters to an .npz file."""
+    frames, counters, mode = decode_capture(args.capture, telemetry=args.telemetry)
+    if args.out:
+        save_frames_npz(args.out, frames, counters, mode)
+    print(json.dumps({'capture': args.capture, 'telemetry': mode, 'frames': len(frames),
+                      'counters': counters}, indent=1))
+    return 0
+
+
+def bench_two_cameras(seconds):
+    """Parse and assemble ``seconds`` of two recorded camera streams; returns timings."""
+    import os
+    import tempfile
+    results = {}
+    with tempfile.TemporaryDirectory() as folder:
+        paths = []
+        for side, seed in (('left', 1), ('right', 2)):
+            path = os.path.join(folder, f'{side}.stcap')
+            simulate_capture(path, seconds, 'footer', None, seed)
+            paths.append(path)
+        started = time.process_time()
+        frames = 0
+        for path in paths:
+            decoded, _, _ = decode_capture(path, telemetry='footer')
+            frames += len(decoded)
+        elapsed = time.process_time() - started
+    results['stream_seconds'] = seconds
+    results['cameras'] = 2
+    results['unique_frames'] = frames
+    results['cpu_seconds'] = elapsed
+    # Both cameras stream at once: `seconds` of real time cost `elapsed` CPU seconds.
+    results['real_time_factor'] = seconds / elapsed
+    return results
+
+
+def command_bench(args):
+    """``st-stereo lepton bench``: parsing + assembly speed vs real time, two cameras."""
+    result = bench_two_cameras(args.seconds)
+    print('| stream | cameras | unique frames | CPU s (one core) | x real time, both cameras |')
+    print('|---|---|---|---|---|')
+    print(f'| {result["stream_seconds"]} s | 2 | {result["unique_frames"]} | '
+          f'{result["cpu_seconds"]:.2f} | {result["real_time_factor"]:.1f} |')
+    return 0
+
+
+def add_parser(sub):
+    """Add ``lepton`` and its subcommands to the ``st-stereo`` parser."""
+    lepton = sub.add_parser('lepton', help='Lepton captures: simulate, decode, bench')
+    tools = lepton.add_subparsers(dest='lepton_command', required=True)
+    p = tools.add_parser('simulate', help='write a raw capture of a simulated camera')
+    p.add_argument('--out', required=True, help='capture file to write')
+    p.add_argument('--seconds', type=float, default=10.0)
+    p.add_argument('--telemetry', choices=('off', 'header', 'footer'), default='off')
+    p.add_argument('--faults', default='', help='kind=rate,... per core frame (kinds: '
+                   + ', '.join(FAULT_KINDS) + ')')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--plain', action='store_true',
+                   help='write plain concatenated SPI bytes (no header, no stamps)')
+    p.set_defaults(handler=command_simulate)
+    p = tools.add_parser('decode', help='decode a capture into frames (.npz)')
+    p.add_argument('capture')
+    p.add_argument('--out', help='frames.npz to write')
+    p.add_argument('--telemetry', choices=('off', 'header', 'footer'), default=None,
+                   help='telemetry mode (default: from the capture header, or detected)')
+    p.set_defaults(handler=command_decode)
+    p = tools.add_parser('bench', help='parsing + assembly speed, two cameras')
+    p.add_argument('--seconds', type=float, default=60.0, help='seconds of stream per camera')
+    p.set_defaults(handler=command_bench)
+    return lepton

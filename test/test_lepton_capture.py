@@ -1,0 +1,87 @@
+"""Raw captures: record, replay identically, plain SPI bytes, bad files."""
+
+import json
+
+import numpy as np
+import pytest
+from st_stereo.cli import main
+from st_stereo.lepton.capture import CaptureError, decode_capture, detect_telemetry_mode, \
+    MAGIC, read_capture
+from st_stereo.lepton.simulator import FaultPlan
+from st_stereo.lepton.tools import simulate_capture
+
+
+def test_replay_reproduces_the_live_reader(tmp_path):
+    path = tmp_path / 'c.stcap'
+    faults = FaultPlan({'crc': 0.03, 'missing': 0.03, 'misalign': 0.02})
+    live = simulate_capture(path, 12.0, 'footer', faults, seed=4)
+    frames, replayed, mode = decode_capture(path)
+    assert mode == 'footer'
+    assert replayed == live
+    assert len(frames) == live['unique_frames'] and live['crc_errors'] > 0
+    stamps = [f.stamp for f in frames]
+    assert stamps == sorted(stamps) and stamps[0] > 0
+
+
+@pytest.mark.parametrize('telemetry', ['off', 'header', 'footer'])
+def test_plain_spi_bytes_decode_with_the_mode_detected(tmp_path, telemetry):
+    path = tmp_path / 'plain.bin'
+    live = simulate_capture(path, 4.0, telemetry, None, seed=2, plain=True)
+    data = path.read_bytes()
+    assert not data.startswith(MAGIC)
+    assert detect_telemetry_mode(data) == telemetry
+    frames, counters, mode = decode_capture(path)
+    assert mode == telemetry and len(frames) == live['unique_frames'] > 20
+    assert counters['crc_errors'] == 0
+
+
+def test_plain_bytes_starting_mid_packet_are_realigned(tmp_path):
+    path = tmp_path / 'plain.bin'
+    simulate_capture(path, 3.0, 'off', None, seed=3, plain=True)
+    shifted = tmp_path / 'shifted.bin'
+    shifted.write_bytes(path.read_bytes()[57:])
+    frames, _, _ = decode_capture(shifted)
+    assert len(frames) > 20
+
+
+def test_decode_command_writes_frames_and_counters(tmp_path, capsys):
+    capture, out = tmp_path / 'c.stcap', tmp_path / 'frames.npz'
+    simulate_capture(capture, 3.0, 'header', None, seed=1)
+    assert main(['lepton', 'decode', str(capture), '--out', str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    data = np.load(out)
+    assert data['frames'].shape == (printed['frames'], 60, 80)
+    assert data['frames'].dtype == np.uint16
+    assert json.loads(str(data['counters']))['unique_frames'] == printed['frames']
+    assert list(data['frame_counter']) == list(range(printed['frames']))
+
+
+@pytest.mark.parametrize('content, message', [
+    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}R\x00\x00', 'truncated read record'),
+    (MAGIC + b'\x01\x00', 'truncated header'),
+    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}Z', 'unknown record type'),
+    (b'\x00' * 10, 'shorter than one packet'),
+    (bytes(range(256)) * 200, 'no valid Lepton packet'),
+])
+def test_bad_captures_are_named(tmp_path, content, message):
+    path = tmp_path / 'bad.bin'
+    path.write_bytes(content)
+    with pytest.raises(CaptureError, match=message):
+        decode_capture(path)
+
+
+def test_unsupported_mode_and_missing_file(tmp_path):
+    path = tmp_path / 'rgb.stcap'
+    header = b'{"packet_bytes": 244}'
+    path.write_bytes(MAGIC + b'\x01\x00' + len(header).to_bytes(4, 'little') + header)
+    with pytest.raises(CaptureError, match='RGB888'):
+        decode_capture(path)
+    with pytest.raises(CaptureError, match='no such capture file'):
+        read_capture(tmp_path / 'none.stcap')
+
+
+def test_decode_command_reports_bad_files(tmp_path, capsys):
+    path = tmp_path / 'junk.bin'
+    path.write_bytes(bytes(range(256)) * 100)
+    assert main(['lepton', 'decode', str(path)]) == 2
+    assert 'no valid Lepton packet' in capsys.readouterr().err

@@ -1,0 +1,78 @@
+"""Stereo pairing of two free-running cameras."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from st_stereo.lepton.pairing import PairSynchronizer
+
+
+@dataclasses.dataclass
+class Stamped:
+    stamp: float
+    name: str = ''
+
+
+def feed(sync, left, right):
+    events = sorted([(t, 'left') for t in left] + [(t, 'right') for t in right])
+    pairs = []
+    for stamp, side in events:
+        pairs += sync.push(side, Stamped(stamp, side))
+    return pairs
+
+
+def test_nearest_one_to_one_pairs_and_counted_drops():
+    sync = PairSynchronizer(max_delta=0.05)
+    left = [0.000, 0.113, 0.226, 0.339, 0.452, 0.565]
+    right = [0.030, 0.150, 0.400, 0.460, 0.700]   # 0.226, 0.339 have no partner in 50 ms
+    pairs = feed(sync, left, right)
+    sync.flush()
+    expected = [(0.0, 0.03), (0.113, 0.15), (0.452, 0.46)]
+    assert [(p.left.stamp, p.right.stamp) for p in pairs] == expected
+    counters = sync.counters
+    assert counters.pairs == 3
+    assert counters.dropped_left == 3 and counters.dropped_right == 2
+    assert pairs[0].stamp == pytest.approx(0.015) and pairs[0].skew == pytest.approx(0.03)
+
+
+def test_the_last_pair_waits_until_no_nearer_frame_can_come():
+    sync = PairSynchronizer(max_delta=0.05)
+    assert feed(sync, [0.452], [0.46]) == []          # a left frame at 0.465 would be nearer
+    assert len(sync.push('left', Stamped(0.565))) == 1
+
+
+def test_a_closer_later_frame_wins():
+    sync = PairSynchronizer(max_delta=0.05)
+    pairs = feed(sync, [0.100], [0.060, 0.095, 0.300])
+    assert len(pairs) == 1 and pairs[0].right.stamp == 0.095
+    assert sync.counters.dropped_right == 1
+
+
+def test_two_drifting_cameras_pair_within_the_window():
+    rng = np.random.default_rng(3)
+    period = 3 / 26.4
+    left = np.arange(2000) * period * (1 + 40e-6) + 0.01
+    right = np.arange(2000) * period * (1 - 25e-6) + 0.07
+    keep_left = rng.random(2000) > 0.02       # a few frames lost on each side
+    keep_right = rng.random(2000) > 0.02
+    sync = PairSynchronizer(max_delta=0.05)
+    pairs = feed(sync, list(left[keep_left]), list(right[keep_right]))
+    sync.flush()
+    skews = np.array([p.skew for p in pairs])
+    assert np.all(np.abs(skews) <= 0.05)
+    used_left = [p.left.stamp for p in pairs]
+    assert len(set(used_left)) == len(used_left)          # one-to-one
+    counters = sync.counters
+    assert counters.pairs + counters.dropped_left == keep_left.sum()
+    assert counters.pairs + counters.dropped_right == keep_right.sum()
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match='max_delta'):
+        PairSynchronizer(max_delta=0)
+    sync = PairSynchronizer()
+    sync.push('left', Stamped(1.0))
+    with pytest.raises(ValueError, match='must not go back in time'):
+        sync.push('left', Stamped(0.5))
+    with pytest.raises(ValueError, match='side'):
+        sync.push('middle', Stamped(2.0))

@@ -1,0 +1,110 @@
+"""The thin hardware transports, tested against fakes (no camera is attached here)."""
+
+import numpy as np
+import pytest
+from st_stereo.lepton import purethermal
+from st_stereo.lepton.spi import read_size_for, spidev_buffer_size, SpiTransport
+
+
+def test_spidev_buffer_and_read_size(tmp_path):
+    path = tmp_path / 'bufsiz'
+    path.write_text('65536\n')
+    assert spidev_buffer_size(path) == 65536
+    assert spidev_buffer_size(tmp_path / 'missing') == 4096
+    assert read_size_for(4096) == 24 * 164
+    with pytest.raises(ValueError, match='raise the spidev bufsiz'):
+        read_size_for(100)
+
+
+def test_spi_transport_errors_are_clear():
+    with pytest.raises(ValueError, match='SPI clock'):
+        SpiTransport('/dev/spidev0.0', speed_hz=40_000_000)
+    with pytest.raises(FileNotFoundError, match='/dev/spidev9.9: no such SPI device'):
+        SpiTransport('/dev/spidev9.9')
+
+
+class FakeUsbDevice:
+    def __init__(self, serial):
+        self.serial_number = serial
+        self.transfers = []
+
+    def ctrl_transfer(self, *args):
+        self.transfers.append(args)
+
+
+def fake_find(devices):
+    def find(find_all, idVendor, idProduct):       # noqa: N803 - pyusb's keyword names
+        assert (idVendor, idProduct) == (0x1E4E, 0x0100)
+        return iter(devices)
+    return find
+
+
+def test_boards_are_found_by_serial():
+    boards = [FakeUsbDevice('PT-A'), FakeUsbDevice('PT-B')]
+    assert purethermal.find_board('PT-B', fake_find(boards)) is boards[1]
+    with pytest.raises(purethermal.PureThermalError, match="'PT-C' \\(found: PT-A, PT-B\\)"):
+        purethermal.find_board('PT-C', fake_find(boards))
+    with pytest.raises(purethermal.PureThermalError, match='2 boards report'):
+        purethermal.find_board('X', fake_find([FakeUsbDevice('X'), FakeUsbDevice('X')]))
+
+
+def test_no_libusb_backend_is_a_clear_error(monkeypatch):
+    import usb.core
+
+    def no_backend(**kwargs):
+        raise usb.core.NoBackendError('No backend available')
+    monkeypatch.setattr(usb.core, 'find', no_backend)
+    with pytest.raises(purethermal.PureThermalError, match='no libusb backend'):
+        purethermal.find_boards()
+
+
+def test_ffc_goes_through_the_sys_extension_unit():
+    request = purethermal.extension_unit_request(0x0242)
+    assert request == {'bmRequestType': 0x21, 'bRequest': 0x01, 'wValue': (0x42 >> 2) + 1 << 8,
+                       'wIndex': 6 << 8}
+    device = FakeUsbDevice('PT')
+    purethermal.run_ffc(device)
+    assert device.transfers[0][:4] == (0x21, 0x01, 17 << 8, 6 << 8)
+    assert purethermal.extension_unit_request(0x4842)['wIndex'] == 4 << 8   # OEM
+    with pytest.raises(ValueError, match='no UVC extension unit'):
+        purethermal.extension_unit_request(0x0942)
+
+
+class FakeCapture:
+    def __init__(self, frames):
+        self.frames = list(frames)
+        self.settings = {}
+
+    def isOpened(self):                       # noqa: N802 - OpenCV's method name
+        return True
+
+    def set(self, key, value):                # noqa: A003 - OpenCV's method name
+        self.settings[key] = value
+
+    def read(self):
+        if not self.frames:
+            return False, None
+        return True, self.frames.pop(0)
+
+    def release(self):
+        pass
+
+
+def test_y16_frames_with_and_without_telemetry_rows():
+    import cv2
+    frames = [np.full((60, 80), 8000, np.uint16), np.full((63, 80), 9000, np.uint16)]
+    capture = purethermal.PureThermalCapture(0, lambda dev: FakeCapture(frames))
+    assert capture.capture.settings[cv2.CAP_PROP_CONVERT_RGB] == 0
+    pixels, telemetry = capture.read()
+    assert pixels.dtype == np.uint16 and telemetry is None
+    pixels, telemetry = capture.read()
+    assert pixels.shape == (60, 80) and telemetry.shape == (3, 80)
+    with pytest.raises(purethermal.PureThermalError, match='no frame'):
+        capture.read()
+
+
+def test_8_bit_streams_are_refused():
+    capture = purethermal.PureThermalCapture(
+        0, lambda dev: FakeCapture([np.zeros((60, 80, 3), np.uint8)]))
+    with pytest.raises(purethermal.PureThermalError, match='expected 16-bit Y16'):
+        capture.read()
