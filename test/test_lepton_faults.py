@@ -10,8 +10,8 @@ timeout in simulated time (60 s) and in wall time (pytest-timeout).
 
 import numpy as np
 import pytest
-from st_stereo.lepton.cci import FakeCciRegisters, LeptonCCI
-from st_stereo.lepton.reader import LeptonReader, RESYNC_IDLE_S
+from st_stereo.lepton.faultbench import run_fault_case
+from st_stereo.lepton.reader import LeptonReader
 from st_stereo.lepton.simulator import FAULT_KINDS, FaultPlan, LeptonSimulator, \
     SyntheticSceneSource
 
@@ -23,105 +23,47 @@ EXPECTED_COUNTER = {'crc': 'crc_errors', 'payload': 'crc_errors', 'id': 'gaps',
                     'ffc_freeze': None}
 
 
-class TimedCCI(LeptonCCI):
-    """The CCI of a simulated camera, remembering when it rebooted the camera."""
-
-    def __init__(self, camera):
-        super().__init__(FakeCciRegisters(camera), sleep=lambda s: None)
-        self.camera = camera
-        self.reboot_times = []
-
-    def reboot(self):
-        self.reboot_times.append(self.camera.now())
-        super().reboot()
-
-
-def run_case(kind, rate, telemetry, seed=11):
-    camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry=telemetry, phase_s=0.013,
-                             faults=FaultPlan({kind: rate}), seed=seed)
-    completions = []
-    cci = TimedCCI(camera)
-    reader = LeptonReader(camera, telemetry=telemetry, cci=cci,
-                          completion_hook=completions.append)
-    frames = []
-    while camera.now() < SIMULATED_S:
-        frame = reader.read_frame(3.0)
-        if frame is not None:
-            frames.append(frame)
-    reader.reboot_times = cci.reboot_times
-    return camera, reader, frames, np.array(completions)
-
-
-def identify(camera, frames, telemetry):
-    if telemetry != 'off':
-        return [f.telemetry.frame_counter for f in frames]
-    lookup = {}
-    for unique, pixels in sorted(camera.intended.items(), reverse=True):
-        lookup[pixels.tobytes()] = unique       # first unique index with these pixels
-    return [lookup.get(f.pixels.tobytes()) for f in frames]
-
-
-def recovery_times(camera, completions, reboot_times):
-    """Time from each fault to the next intact frame: (by resync, through a reboot)."""
-    log = [time for time, _ in camera.delivery_log]
-    by_resync, through_reboot = [], []
-    for i, fault_time in enumerate(log):
-        later = completions[completions > fault_time]
-        if len(later) == 0:
-            continue
-        if i + 1 < len(log) and log[i + 1] < later[0]:
-            continue        # another fault came first: measure from that one
-        rebooted = any(fault_time <= t <= later[0] for t in reboot_times)
-        (through_reboot if rebooted else by_resync).append(later[0] - fault_time)
-    return by_resync, through_reboot
-
-
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize('rate', [0.01, 0.05, 0.15])
 @pytest.mark.parametrize('kind', FAULT_KINDS)
 def test_fault_matrix(kind, rate):
     telemetry = 'footer' if kind == 'ffc_freeze' else 'off'
-    camera, reader, frames, completions = run_case(kind, rate, telemetry)
-    counters = reader.counters
-    delivered = camera.delivered[kind]
+    case = run_fault_case(kind, rate, telemetry, SIMULATED_S)
+    counters = case.counters
+    delivered = case.delivered
     assert delivered > 0, 'the case injected nothing: raise the rate or the duration'
-    indices = identify(camera, frames, telemetry)
-    for frame, unique in zip(frames, indices):
-        assert unique is not None, 'a frame that the camera never sent was emitted'
-        assert np.array_equal(frame.pixels, camera.intended[unique])
-    assert all(a < b for a, b in zip(indices, indices[1:])), 'frames out of order'
-    assert counters.unique_frames == len(frames)
+    assert case.corrupt == 0, 'a frame the camera never sent (or sent otherwise) was emitted'
+    assert case.ordered, 'frames out of order'
+    assert counters['unique_frames'] == len(case.frames)
     counter = EXPECTED_COUNTER[kind]
     if counter is not None:
-        assert getattr(counters, counter) == delivered
+        assert counters[counter] == delivered
     if kind == 'discard_burst':
-        assert counters.discards_in_frame > 0 and counters.frames_aborted == 0
+        assert counters['discards_in_frame'] > 0 and counters['frames_aborted'] == 0
     if kind in ('misalign', 'stall'):
-        detected = counters.crc_errors + counters.gaps + counters.repeats + counters.bad_ids
+        detected = counters['crc_errors'] + counters['gaps'] + counters['repeats'] + \
+            counters['bad_ids']
         assert detected == delivered
-        assert counters.resyncs + counters.reboots >= delivered   # a reboot replaces a resync
+        assert counters['resyncs'] + counters['reboots'] >= delivered   # reboot replaces one
     if kind == 'ffc_freeze':
-        assert counters.ffc_frames > 0
+        assert counters['ffc_frames'] > 0
         assert all(f.ffc_in_progress == (f.telemetry.ffc_state == 'in_progress')
-                   for f in frames)
-    by_resync, through_reboot = recovery_times(camera, completions, reader.reboot_times)
+                   for f in case.frames)
     # A fault cleared by a resync: back within 300 ms. Faults dense enough to defeat K
     # resyncs in a row (and a stuck camera) are cleared by a CCI reboot, within its bound.
-    reboot_bound = (reader.max_resyncs + 1) * (reader.no_video_s + RESYNC_IDLE_S + 0.05) + \
-        reader.reboot_wait_s + 0.1
-    assert by_resync or through_reboot
-    assert max(by_resync, default=0.0) <= 0.3
-    assert max(through_reboot, default=0.0) <= reboot_bound
+    assert case.recovery_by_resync or case.recovery_through_reboot
+    assert max(case.recovery_by_resync, default=0.0) <= 0.3
+    assert max(case.recovery_through_reboot, default=0.0) <= case.reboot_bound_s
     if kind == 'stuck':
-        assert through_reboot and counters.reboots == delivered
+        assert case.recovery_through_reboot and counters['reboots'] == delivered
 
 
 @pytest.mark.timeout(120)
 def test_ffc_freeze_without_telemetry_is_flagged_as_frozen():
-    camera, reader, frames, _ = run_case('ffc_freeze', 0.05, 'off')
-    assert camera.delivered['ffc_freeze'] > 0
+    case = run_fault_case('ffc_freeze', 0.05, 'off', SIMULATED_S)
+    assert case.delivered > 0 and case.corrupt == 0
     # The frozen copies repeat the last content: suppressed, counted as frozen, not lost.
-    assert reader.counters.frozen >= 3 * camera.delivered['ffc_freeze']
+    assert case.counters['frozen'] >= 3 * case.delivered
 
 
 @pytest.mark.timeout(120)

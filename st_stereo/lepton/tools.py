@@ -115,6 +115,18 @@ def command_bench(args):
     return 0
 
 
+def command_faults(args):
+    """``st-stereo lepton faults``: the fault matrix as a Markdown table."""
+    from st_stereo.lepton.faultbench import fault_matrix_markdown, run_fault_case
+    cases = []
+    for kind in FAULT_KINDS:
+        for rate in (float(r) for r in args.rates.split(',')):
+            telemetry = 'footer' if kind == 'ffc_freeze' else 'off'
+            cases.append(run_fault_case(kind, rate, telemetry, args.seconds))
+    print(fault_matrix_markdown(cases))
+    return 0 if all(c.corrupt == 0 and c.ordered for c in cases) else 1
+
+
 def add_parser(sub):
     """Add ``lepton`` and its subcommands to the ``st-stereo`` parser."""
     lepton = sub.add_parser('lepton', help='Lepton captures: simulate, decode, bench')
@@ -135,6 +147,10 @@ def add_parser(sub):
     p.add_argument('--telemetry', choices=('off', 'header', 'footer'), default=None,
                    help='telemetry mode (default: from the capture header, or detected)')
     p.set_defaults(handler=command_decode)
+    p = tools.add_parser('faults', help='the fault matrix (simulated camera), as a table')
+    p.add_argument('--rates', default='0.01,0.05,0.15', help='fault rates per core frame')
+    p.add_argument('--seconds', type=float, default=60.0, help='simulated seconds per case')
+    p.set_defaults(handler=command_faults)
     p = tools.add_parser('bench', help='parsing + assembly speed, two cameras')
     p.add_argument('--seconds', type=float, default=60.0, help='seconds of stream per camera')
     p.set_defaults(handler=command_bench)
