@@ -15,6 +15,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/calibration', glob('config/calibration/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -27,6 +28,11 @@ setup(
     entry_points={
         'console_scripts': [
             'st-stereo = st_stereo.cli:main',
+            'st-stereo-suite = st_stereo.nodes.pipeline:run_suite',
+            'lepton_driver = st_stereo.nodes.driver_node:main',
+            'rectifier = st_stereo.nodes.rectifier_node:main',
+            'matcher = st_stereo.nodes.matcher_node:main',
+            'stereo_pipeline = st_stereo.nodes.pipeline:main',
         ],
     },
 )

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Create or update the local virtual environment, then run the suite or the tests.
 
-    python3 .ci/dev.py run  [ARGS...]   the main job (st-stereo demo ARGS)
+    python3 .ci/dev.py run  [ARGS...]   the main job (st-stereo-suite ARGS)
     python3 .ci/dev.py test [ARGS...]   lint + tests (pytest ARGS)
 
 Needs only Python 3.11 and a network path to the package index. The environment lives in
@@ -76,7 +76,7 @@ def main(argv):
     command, rest = argv[0], argv[1:]
     env = ros_environment()
     if command == 'run':
-        cmd = [str(VENV / 'bin' / 'st-stereo'), 'demo'] + rest
+        cmd = [str(VENV / 'bin' / 'st-stereo-suite')] + rest
     else:
         cmd = [str(venv_python()), '-m', 'pytest', str(ROOT / 'test')] + rest
     log(' '.join(cmd))

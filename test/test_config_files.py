@@ -15,8 +15,11 @@ CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config'
 def test_parameter_file_is_generated_from_the_config():
     text = (CONFIG / 'st_stereo.yaml').read_text()
     assert text == parameters_yaml(), 'regenerate with `st-stereo params --yaml`'
-    values = yaml.safe_load(text)['matcher']['ros__parameters']
+    document = yaml.safe_load(text)
+    values = dict(document['/**/matcher']['ros__parameters'])
+    values.pop('target_frequency')
     assert STConfig.from_mapping(values) == STConfig()
+    assert document['/**/lepton_driver']['ros__parameters']['source'] == 'sim'
 
 
 def test_default_rig_calibration_is_a_rectified_pair():

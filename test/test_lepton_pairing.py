@@ -76,3 +76,9 @@ def test_bad_input():
         sync.push('left', Stamped(0.5))
     with pytest.raises(ValueError, match='side'):
         sync.push('middle', Stamped(2.0))
+
+
+def test_min_period_decides_pairs_without_waiting():
+    sync = PairSynchronizer(max_delta=0.05, min_period=0.1)
+    assert len(feed(sync, [0.452], [0.46])) == 1      # no frame can come within 0.1 s
+    assert sync.counters.pairs == 1

@@ -49,16 +49,20 @@ class PairSynchronizer:
     One-to-one nearest-stamp pairing of two frame streams.
 
     Frames are pushed per side in stamp order (each object has a ``stamp`` attribute).
-    A frame is decided as soon as it is known whether a better partner can still come: the
-    other side has a frame later than ``stamp + max_delta``, or the frame is older than the
-    newest frame of the other side by more than ``max_delta``.
+    A pair is made as soon as no better partner can still come. ``min_period`` (seconds, 0 =
+    unknown) is the shortest gap between two frames of one camera: with it a pair is decided
+    when it arrives instead of when the next frame arrives (the Lepton's unique frames are
+    113.6 ms apart, so 0.1 is safe).
     """
 
-    def __init__(self, max_delta=0.05):
+    def __init__(self, max_delta=0.05, min_period=0.0):
         if not (max_delta > 0 and math.isfinite(max_delta)):
             raise ValueError(f'max_delta: expected a positive number of seconds, got '
                              f'{max_delta!r}')
+        if not (min_period >= 0 and math.isfinite(min_period)):
+            raise ValueError(f'min_period: expected seconds >= 0, got {min_period!r}')
         self.max_delta = max_delta
+        self.min_period = min_period
         self.queues = {'left': collections.deque(), 'right': collections.deque()}
         self.counters = PairingCounters()
         self._last = {'left': -math.inf, 'right': -math.inf}
@@ -105,8 +109,13 @@ class PairSynchronizer:
     def _settled(self, frame, other_side):
         # Stamps arrive in order, so distances to the other side's frames fall then rise: the
         # head's partner is final once the other side holds a second frame, or has already
-        # seen a stamp at or after this frame's.
-        return len(self.queues[other_side]) > 1 or self._last[other_side] >= frame.stamp
+        # seen a stamp at or after this frame's, or when its next frame (at least min_period
+        # later) would be farther than the current partner: decided without waiting.
+        queue = self.queues[other_side]
+        if len(queue) > 1 or self._last[other_side] >= frame.stamp:
+            return True
+        partner = queue[0]
+        return partner.stamp + self.min_period - frame.stamp > abs(partner.stamp - frame.stamp)
 
     def _pair(self, left, right):
         skew = right.stamp - left.stamp

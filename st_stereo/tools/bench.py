@@ -25,14 +25,33 @@ def _ensure_single_thread():
                           env=env).returncode
 
 
+def rig_shift(width):
+    """Disparity of the rig at 3.35 m (fx B / Z), scaled with the image width, pixels."""
+    return 13.82 * width / 80.0
+
+
 def make_pair(frame, width, height, seed=0):
     """Make a realistic synthetic pair of the given size from a frame (module docstring)."""
     from st_stereo.core.image_io import resize_area
     from st_stereo.tools.eval_subpixel import make_shifted_pair
 
     image = resize_area(frame, width, height)
-    shift = 13.82 * width / 80.0    # fx B / Z at 3.35 m, scaled with the image width
-    return make_shifted_pair(image, shift, np.random.default_rng(seed), realistic=True)
+    return make_shifted_pair(image, rig_shift(width), np.random.default_rng(seed),
+                             realistic=True)
+
+
+def config_for_width(base, width):
+    """
+    Return the config a user would run at this width: search +-20 % around the rig's disparity.
+
+    (The default 0..40 px range is for 80x60; a dense range 0..320 at 640x512 would not fit.)
+    """
+    import dataclasses
+    if width <= 80:
+        return base
+    shift = rig_shift(width)
+    return dataclasses.replace(base, disparity_min=int(0.8 * shift),
+                               disparity_max=int(np.ceil(1.2 * shift)))
 
 
 def to_u8(image):
@@ -72,6 +91,8 @@ def _stats(values):
 
 def benchmark_size(matcher, frame, width, height, pairs, progress):
     """Per-stage ST timings and the peers' timings over ``pairs`` pairs of one size."""
+    from st_stereo.core.matcher import StereoMatcher
+    matcher = StereoMatcher(config_for_width(matcher.config, width))
     left, right = make_pair(frame, width, height)
     matcher.match(left, right)   # warm the filter-bank caches
     stages = {}
@@ -114,14 +135,14 @@ def print_table(rows):
         for stage, (median, p90) in row['stages'].items():
             print(f'| {size} | {stage} | {median:.2f} | {p90:.2f} |')
     print()
-    print('| size | ST total median ms | StereoSGBM median ms | ORB+KNN median ms | '
+    print('| size | pairs | ST total median ms | StereoSGBM median ms | ORB+KNN median ms | '
           'ST / SGBM | ST / ORB+KNN | ST matches |')
-    print('|---|---|---|---|---|---|---|')
+    print('|---|---|---|---|---|---|---|---|')
     for size, row in rows.items():
         total = row['stages']['total'][0]
-        print(f'| {size} | {total:.2f} | {row["sgbm"][0]:.2f} | {row["orb_knn"][0]:.2f} | '
-              f'{total / row["sgbm"][0]:.2f} | {total / row["orb_knn"][0]:.2f} | '
-              f'{row["matches"]:.0f} |')
+        print(f'| {size} | {row.get("pairs", "")} | {total:.2f} | {row["sgbm"][0]:.2f} | '
+              f'{row["orb_knn"][0]:.2f} | {total / row["sgbm"][0]:.2f} | '
+              f'{total / row["orb_knn"][0]:.2f} | {row["matches"]:.0f} |')
 
 
 def main(args):
@@ -144,11 +165,14 @@ def main(args):
     for text in args.sizes.split(','):
         width, _, height = text.partition('x')
         sizes.append((int(width), int(height)))
+    # Fewer pairs at large sizes (same order of total time per size).
+    counts = [max(5, int(args.pairs * min(1.0, 4800.0 * 4 / (w * h)))) for w, h in sizes]
     rows = {}
-    with tqdm(total=args.pairs * len(sizes), desc='timing', unit='pair') as progress:
-        for width, height in sizes:
-            rows[f'{width}x{height}'] = benchmark_size(matcher, frame, width, height,
-                                                       args.pairs, progress)
+    with tqdm(total=sum(counts), desc='timing', unit='pair') as progress:
+        for (width, height), count in zip(sizes, counts):
+            row = benchmark_size(matcher, frame, width, height, count, progress)
+            row['pairs'] = count
+            rows[f'{width}x{height}'] = row
     print_table(rows)
     if args.memory_pairs:
         with tqdm(total=args.memory_pairs, desc='memory', unit='pair') as progress:

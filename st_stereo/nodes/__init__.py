@@ -1,0 +1,1 @@
+"""Thin rclpy nodes: they convert messages, hold parameters and call the core and lepton."""

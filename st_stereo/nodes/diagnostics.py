@@ -1,0 +1,69 @@
+"""
+Diagnostics with diagnostic_updater's conventions, without diagnostic_updater.
+
+``FrequencyTracker`` keeps the event times of a sliding window and reports the keys of
+diagnostic_updater's FrequencyStatus; ``status`` builds a DiagnosticStatus from a dict.
+"""
+
+import collections
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
+                          DiagnosticStatus.STALE)
+
+
+class FrequencyTracker:
+    """Events in a sliding window (default 5 s) against a target frequency and tolerance."""
+
+    def __init__(self, target_hz, tolerance=0.2, window_s=5.0):
+        self.target_hz = target_hz
+        self.tolerance = tolerance
+        self.window_s = window_s
+        self.events = collections.deque()
+        self.total = 0
+
+    def tick(self, now):
+        """Record one event at ``now`` (seconds)."""
+        self.events.append(now)
+        self.total += 1
+        self._trim(now)
+
+    def _trim(self, now):
+        while self.events and now - self.events[0] > self.window_s:
+            self.events.popleft()
+
+    def frequency(self, now):
+        """Events per second over the window."""
+        self._trim(now)
+        return len(self.events) / self.window_s
+
+    def values(self, now):
+        """(level, summary, key-value dict) with diagnostic_updater's FrequencyStatus keys."""
+        frequency = self.frequency(now)
+        low = self.target_hz * (1.0 - self.tolerance)
+        high = self.target_hz * (1.0 + self.tolerance)
+        values = {'Events in window': len(self.events), 'Events since startup': self.total,
+                  'Duration of window (s)': self.window_s,
+                  'Actual frequency (Hz)': round(frequency, 3),
+                  'Target frequency (Hz)': self.target_hz,
+                  'Minimum acceptable frequency (Hz)': round(low, 3),
+                  'Maximum acceptable frequency (Hz)': round(high, 3)}
+        if not self.events:
+            return ERROR, 'No events recorded.', values
+        if frequency < low:
+            return WARN, 'Frequency too low.', values
+        if frequency > high:
+            return WARN, 'Frequency too high.', values
+        return OK, 'Desired frequency met', values
+
+
+def status(name, hardware_id, level, message, values):
+    """Build a DiagnosticStatus from a dict of values (rendered as strings)."""
+    out = DiagnosticStatus()
+    out.name = name
+    out.hardware_id = hardware_id
+    out.level = level
+    out.message = message
+    out.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    return out

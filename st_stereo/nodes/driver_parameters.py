@@ -1,0 +1,23 @@
+"""The driver's parameters: one list that the node declares and ``params --yaml`` documents."""
+
+SIDES = ('left', 'right')
+
+DRIVER_PARAMETERS = [
+    ('source', 'sim', 'frame source: sim (two simulated cameras), capture (two raw capture '
+     'files) or spi (two Leptons on spidev)'),
+    ('telemetry', 'off', 'camera telemetry rows: off, header or footer'),
+    ('max_pair_delta', 0.05, 'largest stamp difference of a stereo pair, seconds'),
+    ('duration', 0.0, 'stop after this many seconds of stream (0 = until the source ends)'),
+    ('sim_depth', 3.5, 'sim: depth of the textured plane the cameras see, metres'),
+    ('sim_texture', '', 'sim: texture image (empty = a shared thermal frame)'),
+    ('spi_hz', 16000000, 'spi: SPI clock, Hz (2 to 20 MHz)'),
+] + [
+    item for index, side in enumerate(SIDES) for item in (
+        (f'{side}_capture', '', f'capture: raw capture file of the {side} camera'),
+        (f'{side}_device', f'/dev/spidev0.{index}', f'spi: spidev device of the {side} camera'),
+        (f'{side}_i2c_bus', index, f'spi: I2C bus number of the {side} camera CCI'),
+        (f'{side}_camera_info_url', f'package://st_stereo/config/calibration/{side}.yaml',
+         f'{side} camera_calibration YAML (file:// or package://)'),
+        (f'{side}_frame_id', f'stereo_{side}_optical_frame', f'{side} optical frame id'),
+    )
+]

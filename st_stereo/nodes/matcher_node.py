@@ -1,0 +1,134 @@
+"""
+``matcher``: ST on the rectified pair; publishes ``points2``, ``disparity``, diagnostics.
+
+Subscribes ``left/image_rect``, ``right/image_rect``, ``left/camera_info_rect``,
+``right/camera_info_rect`` (sensor-data QoS, exact stamp sync); every ST parameter is a ROS
+parameter with its range and can be changed live (validated by STConfig).
+"""
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from st_stereo.core.matcher import StereoMatcher
+from st_stereo.core.triangulation import StereoModel
+from st_stereo.nodes import conversions, diagnostics
+from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
+from st_stereo.nodes.sync import ExactTimeSync
+from stereo_msgs.msg import DisparityImage
+
+RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class MatcherNode(Node):
+    """Thin wrapper: messages -> StereoMatcher -> messages."""
+
+    def __init__(self, **kwargs):
+        super().__init__('matcher', **kwargs)
+        self.config = declare_st_parameters(self)
+        self.declare_parameter('target_frequency', 8.7)
+        self.add_on_set_parameters_callback(self._on_parameters)
+        self.matcher = StereoMatcher(self.config)
+        overriding = QoSOverridingOptions.with_default_policies()
+        self.points_pub = self.create_publisher(PointCloud2, 'points2', RELIABLE,
+                                                qos_overriding_options=overriding)
+        self.disparity_pub = self.create_publisher(DisparityImage, 'disparity', RELIABLE,
+                                                   qos_overriding_options=overriding)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.sync = ExactTimeSync(4, self._on_pair)
+        for index, (kind, topic) in enumerate([(Image, 'left/image_rect'),
+                                               (Image, 'right/image_rect'),
+                                               (CameraInfo, 'left/camera_info_rect'),
+                                               (CameraInfo, 'right/camera_info_rect')]):
+            self.create_subscription(kind, topic, lambda msg, i=index: self.sync.add(i, msg),
+                                     qos_profile_sensor_data)
+        self.frequency = diagnostics.FrequencyTracker(
+            self.get_parameter('target_frequency').value)
+        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0}
+        self.last_error = ''
+        self.last_result = None
+        self.latencies = []
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_parameters(self, parameters):
+        result, config = validate_changes(self.config, parameters)
+        if config is not None:
+            self.config = config
+            self.matcher = StereoMatcher(config)
+        return result
+
+    def _on_pair(self, left_msg, right_msg, left_info, right_info):
+        self.counts['pairs'] += 1
+        try:
+            left = conversions.msg_to_image(left_msg)
+            right = conversions.msg_to_image(right_msg)
+            for image, info, side in ((left, left_info, 'left'), (right, right_info, 'right')):
+                if image.shape != (info.height, info.width):
+                    raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but '
+                                     f'its camera_info says {info.width}x{info.height}')
+            model = StereoModel.from_projection_matrices(left_info.p, right_info.p)
+            matcher = self.matcher
+            matcher.model = model
+            result = matcher.match(left, right)
+        except ValueError as error:
+            self.counts['dropped_bad_input'] += 1
+            self.last_error = str(error)
+            return
+        header = left_msg.header
+        points = result.points if result.points is not None else np.zeros((0, 3))
+        intensity = left[result.y, result.x_left] if len(result) else np.zeros(0)
+        self.points_pub.publish(conversions.point_cloud(header, points, result.disparity,
+                                                        result.similarity, intensity))
+        config = self.config
+        self.disparity_pub.publish(conversions.disparity_image(
+            header, left.shape, result.x_left, result.y, result.disparity, model.fx,
+            model.baseline, config.disparity_min, config.disparity_max,
+            (config.poc_window // 2, config.poc_window // 2,
+             left.shape[1] - 2 * (config.poc_window // 2),
+             left.shape[0] - 2 * (config.poc_window // 2))))
+        self.counts['matched'] += 1
+        now = time.time()
+        self.frequency.tick(now)
+        stamp = header.stamp.sec + header.stamp.nanosec * 1e-9
+        self.latencies = (self.latencies + [now - stamp])[-50:]
+        self.last_result = result
+
+    def _publish_diagnostics(self):
+        now = time.time()
+        level, summary, values = self.frequency.values(now)
+        values.update({f'pairs {k}': v for k, v in self.counts.items()})
+        values['pairs dropped by sync (left, right, left info, right info)'] = \
+            ', '.join(map(str, self.sync.dropped))
+        if self.latencies:
+            values['latency median (ms)'] = round(1e3 * float(np.median(self.latencies)), 2)
+        result = self.last_result
+        if result is not None:
+            values.update(result.counts)
+            values.update({f'time {k} (ms)': round(v, 2) for k, v in
+                           result.timings_ms.items()})
+        if self.last_error:
+            level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [diagnostics.status(f'{self.get_name()}: ST matching', 'st_stereo',
+                                           level, summary, values)]
+        self.diagnostics_pub.publish(array)
+
+
+def main(args=None):
+    """Run the matcher node."""
+    rclpy.init(args=args)
+    node = MatcherNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,142 @@
+"""
+``stereo_pipeline``: driver, rectifier and matcher in one process on one executor.
+
+Python has no intra-process transport; several nodes on one executor is its form of
+composition. The same parameter file as the separate nodes applies (node names unchanged).
+"""
+
+import time
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+
+from st_stereo.nodes.conversions import point_cloud_array
+from st_stereo.nodes.driver_node import DriverNode
+from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.rectifier_node import RectifierNode
+
+
+def build_nodes(args=None):
+    """Create the three nodes of the pipeline (rclpy must be initialised)."""
+    return [DriverNode(), RectifierNode(), MatcherNode()]
+
+
+class SuiteMonitor(Node):
+    """Watches ``points2``: frequency, stamp-to-receipt latency, matches, depth."""
+
+    def __init__(self):
+        super().__init__('suite_monitor')
+        self.create_subscription(PointCloud2, 'points2', self._on_points,
+                                 qos_profile_sensor_data)
+        self.times, self.latencies, self.matches, self.depths = [], [], [], []
+
+    def _on_points(self, msg):
+        now = time.time()
+        self.times.append(now)
+        self.latencies.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+        points = point_cloud_array(msg)
+        self.matches.append(len(points))
+        if len(points):
+            self.depths.append(float(np.nanmedian(points[:, 2])))
+
+
+def main(args=None):
+    """Run the pipeline until Ctrl-C."""
+    rclpy.init(args=args)
+    nodes = build_nodes()
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run_suite(argv=None):
+    """
+    Run the main job: the whole suite in one process on a finite stream.
+
+    Prints a status line per second and a summary; exits at the end of the stream or on
+    Ctrl-C.
+    """
+    import argparse
+    parser = argparse.ArgumentParser(prog='st-stereo-suite', description=run_suite.__doc__)
+    parser.add_argument('--seconds', type=float, default=10.0,
+                        help='stream duration (simulated rig), seconds')
+    parser.add_argument('--depth', type=float, default=3.5, help='plane depth, metres')
+    args, ros_args = parser.parse_known_args(argv)
+    rclpy.init(args=['st-stereo-suite', *ros_args] if ros_args else None)
+    driver_overrides = [Parameter('duration', value=float(args.seconds)),
+                        Parameter('sim_depth', value=float(args.depth))]
+    driver = DriverNode(parameter_overrides=driver_overrides)
+    nodes = [driver, RectifierNode(), MatcherNode(), SuiteMonitor()]
+    monitor = nodes[-1]
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    print(f'st_stereo suite: simulated rig (plane at {args.depth} m), {args.seconds} s of '
+          f'stream: lepton_driver -> rectifier -> matcher', flush=True)
+    started = time.monotonic()
+    next_report = started + 1.0
+    try:
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if now >= next_report:
+                next_report += 1.0
+                recent = [t for t in monitor.times if t > time.time() - 1.0]
+                latency = np.median(monitor.latencies[-len(recent):]) * 1e3 if recent else 0
+                matches = monitor.matches[-1] if monitor.matches else 0
+                print(f't={now - started:5.1f}s  {len(recent):2d} fps  latency '
+                      f'{latency:6.1f} ms  matches {matches:4d}  points {matches:4d}  pairs '
+                      f'{driver.published:4d}', flush=True)
+            if driver.finished.is_set() and now - started > 1.0:
+                # Let the last pair go through the pipeline.
+                end = time.monotonic() + 0.5
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.05)
+                break
+    except KeyboardInterrupt:
+        print('interrupted', flush=True)
+    finally:
+        print_summary(driver, nodes[2], monitor, args.depth)
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0 if monitor.times and not driver.last_error else 1
+
+
+def print_summary(driver, matcher, monitor, depth):
+    """Summary of a suite run."""
+    latencies = np.array(monitor.latencies) * 1e3
+    print('\nsummary')
+    print(f'  pairs published: {driver.published}, point clouds received: '
+          f'{len(monitor.times)}, pairs dropped by pairing: '
+          f'{driver.pairing.counters.dropped_left} left / '
+          f'{driver.pairing.counters.dropped_right} right')
+    if len(monitor.times) > 1:
+        span = monitor.times[-1] - monitor.times[0]
+        print(f'  point clouds per second: {(len(monitor.times) - 1) / span:.2f}')
+    if len(latencies):
+        print(f'  latency stamp -> points2: median {np.median(latencies):.1f} ms, p99 '
+              f'{np.percentile(latencies, 99):.1f} ms')
+    if monitor.matches:
+        print(f'  matches per pair: median {np.median(monitor.matches):.0f}')
+    if monitor.depths:
+        print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
+    for index, reader in enumerate(driver.readers):
+        counters = reader.counters
+        print(f'  camera {index}: {counters.unique_frames} unique frames, '
+              f'{counters.frames_aborted} aborted, {counters.resyncs} resyncs')
+    if driver.last_error:
+        print(f'  driver error: {driver.last_error}')

@@ -1,0 +1,104 @@
+"""
+``rectifier``: rectifies the raw pair with D, R and P; 16-bit counts kept.
+
+Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``,
+``right/camera_info`` (exact stamp sync); publishes ``left/image_rect``, ``right/image_rect``
+(mono16) and the rectified camera_infos, both in the left optical frame.
+"""
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, Image
+
+from st_stereo.core.rectification import StereoRectifier
+from st_stereo.nodes import conversions, diagnostics
+from st_stereo.nodes.sync import ExactTimeSync
+
+RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class RectifierNode(Node):
+    """Thin wrapper: raw pair + infos -> StereoRectifier -> rectified pair + infos."""
+
+    def __init__(self, **kwargs):
+        super().__init__('rectifier', **kwargs)
+        overriding = QoSOverridingOptions.with_default_policies()
+        self.image_pubs = [self.create_publisher(Image, f'{side}/image_rect', RELIABLE,
+                                                 qos_overriding_options=overriding)
+                           for side in ('left', 'right')]
+        self.info_pubs = [self.create_publisher(CameraInfo, f'{side}/camera_info_rect',
+                                                RELIABLE, qos_overriding_options=overriding)
+                          for side in ('left', 'right')]
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.sync = ExactTimeSync(4, self._on_pair)
+        for index, (kind, topic) in enumerate([(Image, 'left/image_raw'),
+                                               (Image, 'right/image_raw'),
+                                               (CameraInfo, 'left/camera_info'),
+                                               (CameraInfo, 'right/camera_info')]):
+            self.create_subscription(kind, topic, lambda msg, i=index: self.sync.add(i, msg),
+                                     qos_profile_sensor_data)
+        self.rectifier = None
+        self._calibration_key = None
+        self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0}
+        self.last_error = ''
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _rectifier_for(self, left_info, right_info):
+        key = (tuple(left_info.p), tuple(right_info.p), tuple(left_info.d),
+               tuple(right_info.d), tuple(left_info.r), tuple(right_info.r))
+        if key != self._calibration_key:
+            self.rectifier = StereoRectifier(
+                conversions.calibration_from_camera_info(left_info, 'left'),
+                conversions.calibration_from_camera_info(right_info, 'right'))
+            self._calibration_key = key
+        return self.rectifier
+
+    def _on_pair(self, left_msg, right_msg, left_info, right_info):
+        self.counts['pairs'] += 1
+        try:
+            rectifier = self._rectifier_for(left_info, right_info)
+            left, right = rectifier.rectify(conversions.msg_to_image(left_msg, 'mono16'),
+                                            conversions.msg_to_image(right_msg, 'mono16'))
+        except ValueError as error:
+            self.counts['dropped_bad_input'] += 1
+            self.last_error = str(error)
+            return
+        header = left_msg.header        # both rectified streams: the left optical frame
+        for pub, image in zip(self.image_pubs, (left, right)):
+            pub.publish(conversions.image_to_msg(np.clip(np.rint(image), 0, 65535), header))
+        for pub, info in zip(self.info_pubs, (left_info, right_info)):
+            pub.publish(conversions.rectified_camera_info(info, header))
+        self.counts['rectified'] += 1
+
+    def _publish_diagnostics(self):
+        values = dict(self.counts)
+        values['pairs dropped by sync (left, right, left info, right info)'] = \
+            ', '.join(map(str, self.sync.dropped))
+        level, message = diagnostics.OK, 'rectifying'
+        if self.last_error:
+            level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
+        elif not self.counts['rectified']:
+            level, message = diagnostics.WARN, 'no pair rectified yet'
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [diagnostics.status(f'{self.get_name()}: rectification', 'st_stereo',
+                                           level, message, values)]
+        self.diagnostics_pub.publish(array)
+
+
+def main(args=None):
+    """Run the rectifier node."""
+    rclpy.init(args=args)
+    node = RectifierNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,37 @@
+"""
+A stereo scene for the simulated driver until the simulated rig exists: a textured plane.
+
+The plane faces the rig at a known depth; the left camera sees a real thermal frame, the right
+camera the same frame moved left by the rig's disparity at that depth (Fourier shift), with
+independent temporal noise, and a gain / offset difference as two uncooled cameras have.
+"""
+
+import numpy as np
+
+from st_stereo.core.fourier import fourier_shift_image_x
+from st_stereo.core.image_io import read_thermal_image, resize_area
+from st_stereo.lepton.simulator import ArraySource
+
+
+def plane_scene_sources(model, depth_m, texture_path=None, frames=32, seed=0,
+                        low=7800.0, high=8600.0, noise_counts=3.0):
+    """
+    Left and right frame sources of a textured plane at ``depth_m`` (metres).
+
+    Returns
+    -------
+    (ArraySource, ArraySource, float)
+        The two sources and the true disparity, pixels.
+
+    """
+    if texture_path is None:
+        from st_stereo.tools.data import shared_frame
+        texture_path = shared_frame()
+    texture = resize_area(read_thermal_image(texture_path), 80, 60)
+    texture = low + (texture - texture.min()) * (high - low) / max(np.ptp(texture), 1e-9)
+    disparity = float(model.disparity_of_depth(depth_m))
+    shifted = fourier_shift_image_x(texture, disparity)
+    rng = np.random.default_rng(seed)
+    left = texture[None] + rng.normal(0.0, noise_counts, (frames, 60, 80))
+    right = 1.02 * shifted[None] + 15.0 + rng.normal(0.0, noise_counts, (frames, 60, 80))
+    return ArraySource(left), ArraySource(right), disparity

@@ -1,0 +1,179 @@
+"""
+The node suite with real rclpy (Fast DDS on loopback): end to end, diagnostics, bad input.
+
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .ci/dev.py.
+"""
+
+import os
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from st_stereo.core.camera_calibration import CalibrationError
+from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
+from st_stereo.nodes.driver_node import DriverNode
+from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.rectifier_node import RectifierNode
+from std_msgs.msg import Header
+
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+
+@pytest.fixture
+def ros():
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+    yield context, executor, add
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+class Collector(Node):
+    def __init__(self, context):
+        super().__init__('collector', context=context)
+        self.clouds, self.statuses = [], {}
+        self.create_subscription(PointCloud2, 'points2', self.clouds.append,
+                                 qos_profile_sensor_data)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
+
+
+def spin_until(executor, predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        executor.spin_once(timeout_sec=0.05)
+
+
+@pytest.mark.timeout(180)
+def test_simulated_rig_end_to_end(ros):
+    context, executor, add = ros
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('duration', value=6.0), Parameter('sim_depth', value=3.5),
+        Parameter('telemetry', value='footer')]))
+    add(RectifierNode(context=context))
+    add(MatcherNode(context=context))
+    collector = add(Collector(context))
+    spin_until(executor, driver.finished.is_set, 90.0)
+    spin_until(executor, lambda: False, 1.5)          # drain the last pair and diagnostics
+    clouds = collector.clouds
+    assert len(clouds) >= 30, f'{len(clouds)} point clouds'
+    stamps = np.array([c.header.stamp.sec + c.header.stamp.nanosec * 1e-9 for c in clouds])
+    steady = stamps[len(stamps) // 4:]
+    assert (len(steady) - 1) / (steady[-1] - steady[0]) >= 8.0     # pairs lost in transit
+    depths = [np.nanmedian(point_cloud_array(c)[:, 2]) for c in clouds]
+    assert np.median(depths) == pytest.approx(3.5, rel=0.01)
+    first = clouds[0]
+    assert [f.name for f in first.fields][:3] == ['x', 'y', 'z']
+    assert first.header.frame_id == 'stereo_left_optical_frame'
+    pairs = collector.statuses['lepton_driver: stereo pairs']
+    for key in ('Actual frequency (Hz)', 'Events in window', 'Target frequency (Hz)',
+                'pair skew max (ms)', 'frames dropped (left unmatched)'):
+        assert key in pairs
+    camera = collector.statuses['lepton_driver: left camera']
+    for key in ('crc_errors', 'gaps', 'resyncs', 'FPA temperature (K)', 'FFC state'):
+        assert key in camera
+    matching = collector.statuses['matcher: ST matching']
+    for key in ('features', 'matches', 'rejected_left_right', 'rejected_subpixel_range',
+                'time total (ms)', 'latency median (ms)', 'Actual frequency (Hz)'):
+        assert key in matching
+
+
+def test_parameters_out_of_range_are_rejected_with_the_reason(ros):
+    context, _, add = ros
+    matcher = add(MatcherNode(context=context))
+    result = matcher.set_parameters([Parameter('poc_window', value=8)])[0]
+    assert not result.successful and 'poc_window' in result.reason   # the descriptor's step
+    result = matcher.set_parameters([Parameter('disparity_min', value=50)])[0]
+    assert not result.successful and 'disparity_min' in result.reason
+    assert matcher.set_parameters([Parameter('gamma', value=0.3)])[0].successful
+    assert matcher.config.gamma == 0.3
+
+
+def test_invalid_calibration_names_file_and_field(ros, tmp_path):
+    context, _, _ = ros
+    bad = tmp_path / 'left.yaml'
+    bad.write_text('image_width: 80\nimage_height: 60\ndistortion_model: plumb_bob\n')
+    with pytest.raises(CalibrationError, match=f'{bad}: missing field .camera_matrix.'):
+        DriverNode(context=context, parameter_overrides=[
+            Parameter('left_camera_info_url', value=f'file://{bad}')])
+
+
+def _info(width, height, tx):
+    info = CameraInfo()
+    info.width, info.height = width, height
+    info.k = [83.9, 0.0, 39.5, 0.0, 83.9, 29.5, 0.0, 0.0, 1.0]
+    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    info.d = [0.0] * 5
+    info.distortion_model = 'plumb_bob'
+    info.p = [83.9, 0.0, 39.5, tx, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return info
+
+
+def test_mismatched_image_and_info_are_dropped_counted_and_reported(ros):
+    context, executor, add = ros
+    matcher = add(MatcherNode(context=context))
+    header = Header(frame_id='left')
+    image = image_to_msg(np.full((60, 80), 8000, np.uint16), header)
+    # The camera_info says 160x120: an error diagnostic, the pair dropped and counted.
+    matcher.sync.add(0, image)
+    matcher.sync.add(1, image)
+    matcher.sync.add(2, _info(160, 120, 0.0))
+    matcher.sync.add(3, _info(160, 120, -46.3))
+    assert matcher.counts['dropped_bad_input'] == 1
+    assert 'camera_info says 160x120' in matcher.last_error
+    # ... and the node keeps running: a good pair goes through.
+    header.stamp.sec = 1
+    image = image_to_msg(np.full((60, 80), 8000, np.uint16), header)
+    for index, msg in enumerate((image, image, _info(80, 60, 0.0), _info(80, 60, -46.3))):
+        msg.header = header
+        matcher.sync.add(index, msg)
+    assert matcher.counts['matched'] == 1
+
+
+def test_wrong_encoding_is_dropped_and_counted(ros):
+    context, _, add = ros
+    rectifier = add(RectifierNode(context=context))
+    header = Header(frame_id='left')
+    image = image_to_msg(np.zeros((60, 80), np.uint8), header, 'mono8')
+    for index, msg in enumerate((image, image, _info(80, 60, 0.0), _info(80, 60, -46.3))):
+        msg.header = header
+        rectifier.sync.add(index, msg)
+    assert rectifier.counts['dropped_bad_input'] == 1
+    assert 'expected mono16, got mono8' in rectifier.last_error
+
+
+def test_image_messages_round_trip():
+    from st_stereo.nodes.conversions import msg_to_image
+    pixels = np.arange(4800, dtype=np.uint16).reshape(60, 80)
+    msg = image_to_msg(pixels, Header())
+    assert msg.step == 160 and msg.encoding == 'mono16'
+    assert np.array_equal(msg_to_image(msg), pixels)
+    msg.step = 100
+    with pytest.raises(ValueError, match='image step: expected 160'):
+        msg_to_image(msg)
+
+
+def test_cloud_layout(ros):
+    from st_stereo.nodes.conversions import point_cloud
+    cloud = point_cloud(Header(), np.ones((3, 3)), np.ones(3), np.ones(3), np.ones(3))
+    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 24, 72)
+    assert [f.offset for f in cloud.fields][:3] == [0, 4, 8] and cloud.is_dense
+    assert not hasattr(Image, 'nonexistent')
