@@ -1,0 +1,191 @@
+"""
+``bag_record`` and ``bag_play``: rosbag2 without the ros2 CLI, through ``rosbags``.
+
+Recording subscribes in raw mode (the CDR bytes, identical to rclpy's) and writes MCAP
+(metadata version 9, as Jazzy does). Playback reads any rosbag2 that ``rosbags`` reads (sqlite3
+or MCAP, metadata versions 4 to 9, split into several files or not) and publishes every
+topic's recorded bytes unchanged, with its recorded type and QoS, at the recorded pace
+(``rate`` times faster or slower), optionally publishing ``/clock``.
+"""
+
+import argparse
+import importlib
+import pathlib
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import StoragePlugin
+from rosbags.typesys import get_typestore, Stores
+from rosgraph_msgs.msg import Clock
+
+RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
+                   'right/camera_info')
+
+
+def message_class(msgtype):
+    """Return the Python class of 'pkg/msg/Name' (ImportError names a missing package)."""
+    package, kind, name = msgtype.split('/')
+    try:
+        return getattr(importlib.import_module(f'{package}.{kind}'), name)
+    except (ImportError, AttributeError):
+        raise ImportError(f'message type {msgtype}: its package is not installed') from None
+
+
+def qos_from_recorded(profiles):
+    """
+    Return the rclpy QoSProfile of the offered QoS recorded in a bag.
+
+    Reliable with depth 10 when nothing was recorded.
+    """
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    if profiles:
+        recorded = profiles[0]
+        reliability = getattr(recorded.reliability, 'value', recorded.reliability)
+        durability = getattr(recorded.durability, 'value', recorded.durability)
+        if reliability == 2:
+            qos.reliability = ReliabilityPolicy.BEST_EFFORT
+        if durability == 1:
+            qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        qos.history = HistoryPolicy.KEEP_LAST
+        qos.depth = max(int(getattr(recorded, 'depth', 0) or 10), 1)
+    return qos
+
+
+class BagRecorder(Node):
+    """Record topics (raw bytes) into an MCAP rosbag2."""
+
+    def __init__(self, path, topics, **kwargs):
+        super().__init__('bag_record', **kwargs)
+        self.path = pathlib.Path(path)
+        if self.path.exists():
+            raise FileExistsError(f'{self.path}: the bag already exists')
+        self.topics = [self.resolve_topic_name(t) for t in topics]
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections = {}
+        self.counts = dict.fromkeys(self.topics, 0)
+        self._subscribed = set()
+        self.create_timer(0.2, self._discover)
+        self._discover()
+
+    def _discover(self):
+        types = dict(self.get_topic_names_and_types())
+        for topic in self.topics:
+            if topic in self._subscribed or topic not in types:
+                continue
+            msgtype = types[topic][0]
+            self.connections[topic] = self.writer.add_connection(
+                topic, msgtype, typestore=self.typestore)
+            self.create_subscription(message_class(msgtype), topic,
+                                     lambda data, t=topic: self._write(t, data),
+                                     QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
+                                     raw=True)
+            self._subscribed.add(topic)
+
+    def _write(self, topic, data):
+        self.writer.write(self.connections[topic], self.get_clock().now().nanoseconds, data)
+        self.counts[topic] += 1
+
+    def close(self):
+        """Finish the bag (metadata written)."""
+        self.writer.close()
+
+
+class BagPlayer(Node):
+    """Publish the messages of a rosbag2 with their recorded bytes, types and QoS."""
+
+    def __init__(self, path, rate=1.0, publish_clock=False, topics=None, **kwargs):
+        super().__init__('bag_play', **kwargs)
+        if rate <= 0:
+            raise ValueError(f'rate must be positive, got {rate}')
+        self.path = pathlib.Path(path)
+        self.reader = Reader(self.path)
+        self.reader.open()
+        self.rate = rate
+        self.publishers_by_id = {}
+        for connection in self.reader.connections:
+            if topics and connection.topic not in topics:
+                continue
+            profiles = getattr(connection.ext, 'offered_qos_profiles', [])
+            self.publishers_by_id[connection.id] = self.create_publisher(
+                message_class(connection.msgtype), connection.topic,
+                qos_from_recorded(profiles))
+        self.clock_pub = self.create_publisher(Clock, '/clock', 10) if publish_clock else None
+        self.published = 0
+
+    def play(self, stop=None, spin=None):
+        """Publish every message at the recorded pace; returns the number published."""
+        connections = [c for c in self.reader.connections if c.id in self.publishers_by_id]
+        start_wall = time.monotonic()
+        start_bag = None
+        for connection, timestamp, data in self.reader.messages(connections=connections):
+            if stop is not None and stop():
+                break
+            if start_bag is None:
+                start_bag = timestamp
+            due = start_wall + (timestamp - start_bag) * 1e-9 / self.rate
+            while True:
+                wait = due - time.monotonic()
+                if wait <= 0:
+                    break
+                if spin is not None:
+                    spin(min(wait, 0.01))
+                else:
+                    time.sleep(min(wait, 0.01))
+            if self.clock_pub is not None:
+                clock = Clock()
+                clock.clock.sec, clock.clock.nanosec = divmod(timestamp, 1_000_000_000)
+                self.clock_pub.publish(clock)
+            self.publishers_by_id[connection.id].publish(bytes(data))
+            self.published += 1
+        return self.published
+
+    def close(self):
+        """Close the bag."""
+        self.reader.close()
+
+
+def record_main(argv=None):
+    """``bag_record OUTPUT [TOPIC ...]``: record until Ctrl-C (default: the raw pair)."""
+    parser = argparse.ArgumentParser(prog='bag_record', description=record_main.__doc__)
+    parser.add_argument('output', help='bag directory to create')
+    parser.add_argument('topics', nargs='*', default=list(RAW_PAIR_TOPICS))
+    args, ros_args = parser.parse_known_args(argv)
+    rclpy.init(args=['bag_record', *ros_args] if ros_args else None)
+    node = BagRecorder(args.output, args.topics)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        print(dict(node.counts))
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def play_main(argv=None):
+    """``bag_play BAG [--rate R] [--clock]``: publish a bag's messages as recorded."""
+    parser = argparse.ArgumentParser(prog='bag_play', description=play_main.__doc__)
+    parser.add_argument('bag')
+    parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor')
+    parser.add_argument('--clock', action='store_true', help='publish /clock')
+    parser.add_argument('--topics', nargs='*', help='only these topics')
+    args, ros_args = parser.parse_known_args(argv)
+    rclpy.init(args=['bag_play', *ros_args] if ros_args else None)
+    node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
+    try:
+        time.sleep(0.5)      # let subscribers discover the publishers
+        count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s))
+        print(f'published {count} messages from {args.bag}')
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
