@@ -93,16 +93,13 @@ def test_record_then_replay_twice_gives_identical_matches(tmp_path):
     assert first == second          # bit for bit, for every pair
 
 
-@pytest.mark.timeout(300)
-def test_a_bag_written_by_rosbags_alone_replays_through_the_suite(tmp_path, people_80x60):
+def write_external_bag(bag, texture, depth, pairs=20):
+    """Write a bag with rosbags alone (sqlite3, metadata v8): a plane at ``depth``."""
     left_cal, right_cal = default_rig_calibrations()
     model = StereoModel.from_projection_matrices(left_cal.projection, right_cal.projection)
-    depth = 3.2
-    disparity = float(model.disparity_of_depth(depth))
-    texture = 7800 + (people_80x60 - people_80x60.min()) * 800 / np.ptp(people_80x60)
-    right_image = fourier_shift_image_x(texture, disparity)
+    texture = 7800 + (texture - texture.min()) * 800 / np.ptp(texture)
+    right_image = fourier_shift_image_x(texture, float(model.disparity_of_depth(depth)))
     typestore = get_typestore(Stores.ROS2_HUMBLE)     # written by another distribution
-    bag = tmp_path / 'external'
     with Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
         connections = {
             name: writer.add_connection(f'/{name}', msgtype, typestore=typestore)
@@ -110,23 +107,58 @@ def test_a_bag_written_by_rosbags_alone_replays_through_the_suite(tmp_path, peop
                                   ('right/image_raw', 'sensor_msgs/msg/Image'),
                                   ('left/camera_info', 'sensor_msgs/msg/CameraInfo'),
                                   ('right/camera_info', 'sensor_msgs/msg/CameraInfo'))}
-        for index in range(20):
+        for index in range(pairs):
             stamp_ns = 1_700_000_000_000_000_000 + index * 113_600_000
             header = Header(frame_id='cam_left')
             header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             rng = np.random.default_rng(index)
-            messages = {
-                'left/image_raw': image_to_msg(np.round(texture + rng.normal(0, 2, texture.shape)),
-                                               header),
-                'right/image_raw': image_to_msg(np.round(right_image + rng.normal(
-                    0, 2, texture.shape)), header),
-                'left/camera_info': camera_info_from_calibration(left_cal, header),
-                'right/camera_info': camera_info_from_calibration(right_cal, header)}
+            noisy_left = np.round(texture + rng.normal(0, 2, texture.shape))
+            noisy_right = np.round(right_image + rng.normal(0, 2, texture.shape))
+            messages = {'left/image_raw': image_to_msg(noisy_left, header),
+                        'right/image_raw': image_to_msg(noisy_right, header),
+                        'left/camera_info': camera_info_from_calibration(left_cal, header),
+                        'right/camera_info': camera_info_from_calibration(right_cal, header)}
             for name, msg in messages.items():
                 writer.write(connections[name], stamp_ns, serialize_message(msg))
+
+
+@pytest.mark.timeout(300)
+def test_a_bag_written_by_rosbags_alone_replays_through_the_suite(tmp_path, people_80x60):
+    depth = 3.2
+    bag = tmp_path / 'external'
+    write_external_bag(bag, people_80x60, depth)
     clouds, published = replay(bag, rate=1.0)
     assert published == 80
     assert len(clouds) >= 15
     depths = [np.nanmedian(np.frombuffer(data, '<f4').reshape(-1, 6)[:, 2])
               for data in clouds.values()]
     assert np.median(depths) == pytest.approx(depth, rel=0.01)
+
+
+@pytest.mark.timeout(300)
+def test_driver_bag_source_feeds_the_suite(tmp_path, people_80x60):
+    bag = tmp_path / 'external'
+    write_external_bag(bag, people_80x60, 3.0, pairs=15)
+    context, executor = new_context()
+    driver = DriverNode(context=context, parameter_overrides=[
+        Parameter('source', value='bag'), Parameter('bag', value=str(bag))])
+    nodes = [driver, RectifierNode(context=context), MatcherNode(context=context),
+             Clouds(context)]
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 60
+        while not driver.finished.is_set() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        spin_for(executor, 1.0)
+        clouds = nodes[-1].by_stamp
+        assert driver.published >= 14 and len(clouds) >= 10
+        depths = [np.nanmedian(np.frombuffer(d, '<f4').reshape(-1, 6)[:, 2])
+                  for d in clouds.values()]
+        assert np.median(depths) == pytest.approx(3.0, rel=0.01)
+        first = min(clouds)
+        assert first[0] == 1_700_000_000                  # the bag's own stamps
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

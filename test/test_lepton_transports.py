@@ -108,3 +108,19 @@ def test_8_bit_streams_are_refused():
         0, lambda dev: FakeCapture([np.zeros((60, 80, 3), np.uint8)]))
     with pytest.raises(purethermal.PureThermalError, match='expected 16-bit Y16'):
         capture.read()
+
+
+def test_purethermal_reader_stamps_new_frames_and_counts_copies():
+    first = np.full((63, 80), 8000, np.uint16)
+    second = first.copy()
+    second[5, 5] = 8100
+    frames = [first, first.copy(), second]
+    reader = purethermal.PureThermalReader(
+        'PT-A', 0, capture_factory=lambda dev: FakeCapture(frames),
+        find=fake_find([FakeUsbDevice('PT-A')]))
+    got = [reader.read_frame(), reader.read_frame(), reader.read_frame()]
+    assert got[0].pixels.shape == (60, 80) and got[1] is None and got[2].index == 1
+    assert reader.counters.duplicates == 1 and reader.counters.unique_frames == 2
+    with pytest.raises(purethermal.PureThermalError, match='no PureThermal board'):
+        purethermal.PureThermalReader('PT-Z', 0, lambda dev: FakeCapture(frames),
+                                      fake_find([FakeUsbDevice('PT-A')]))

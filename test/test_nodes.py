@@ -177,3 +177,26 @@ def test_cloud_layout(ros):
     assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 24, 72)
     assert [f.offset for f in cloud.fields][:3] == [0, 4, 8] and cloud.is_dense
     assert not hasattr(Image, 'nonexistent')
+
+
+def test_services_trigger_ffc_and_set_camera_info(ros, tmp_path):
+    from sensor_msgs.srv import SetCameraInfo
+    from st_stereo.core.camera_calibration import load_calibration
+    from std_srvs.srv import Trigger
+    context, executor, add = ros
+    target = tmp_path / 'left.yaml'
+    driver = add(DriverNode(context=context))
+    response = driver._trigger_ffc(Trigger.Request(), Trigger.Response())
+    assert response.success and 'FFC started' in response.message
+    # SetCameraInfo writes camera_calibration YAML to a file:// URL and is used at once.
+    driver.info_urls[0] = f'file://{target}'
+    request = SetCameraInfo.Request()
+    request.camera_info = _info(80, 60, 0.0)
+    request.camera_info.k[0] = 85.0
+    response = driver._set_camera_info(0, request, SetCameraInfo.Response())
+    assert response.success, response.status_message
+    assert load_calibration(target).camera_matrix[0, 0] == 85.0
+    assert driver.calibrations[0].camera_matrix[0, 0] == 85.0
+    request.camera_info.width = 160
+    response = driver._set_camera_info(0, request, SetCameraInfo.Response())
+    assert not response.success and '160x60' in response.status_message

@@ -142,3 +142,52 @@ class PureThermalCapture:
     def close(self):
         """Release the device."""
         self.capture.release()
+
+
+class _WallClock:
+    """The transport face of a board: wall-clock time for stamps and interleaving."""
+
+    def __init__(self, device):
+        import time
+        self.now = time.time
+        self.device = device
+
+
+class PureThermalReader:
+    """
+    A PureThermal board with the reader's interface (``read_frame``, ``counters``).
+
+    Frames are stamped with the host time at which they were read from V4L2.
+    """
+
+    def __init__(self, serial, video_device, capture_factory=None, find=None):
+        from st_stereo.lepton.assembler import LeptonCounters
+        if serial:
+            find_board(serial, find)           # a clear error when the board is absent
+        self.capture = PureThermalCapture(video_device, capture_factory)
+        self.transport = _WallClock(f'purethermal:{serial or video_device}')
+        self.counters = LeptonCounters()
+        self._index = 0
+        self._last = None
+
+    def read_frame(self, timeout_s=1.0):
+        """Return the next new frame (identical consecutive frames are copies)."""
+        import time
+
+        from st_stereo.lepton.reader import LeptonFrame
+        from st_stereo.lepton.telemetry import parse_telemetry_row_a
+        pixels, rows = self.capture.read()
+        stamp = time.time()
+        self.counters.frames_completed += 1
+        if self._last is not None and np.array_equal(pixels, self._last):
+            self.counters.duplicates += 1
+            return None
+        self._last = pixels
+        telemetry = None
+        if rows is not None:
+            telemetry = parse_telemetry_row_a(rows[0].astype('>u2').tobytes())
+        self.counters.unique_frames += 1
+        frame = LeptonFrame(pixels, stamp, self._index, telemetry,
+                            telemetry is not None and telemetry.ffc_state == 'in_progress')
+        self._index += 1
+        return frame

@@ -2,7 +2,8 @@
 ``lepton_driver``: two Leptons -> one synchronised raw pair.
 
 Sources: ``sim`` (two simulated cameras looking at a textured plane at ``sim_depth`` metres),
-``capture`` (two raw capture files), ``spi`` (two spidev devices, CCI on two I2C buses).
+``capture`` (two raw capture files), ``spi`` (two spidev devices, CCI on two I2C buses),
+``purethermal`` (two boards by serial number) and ``bag`` (the raw image topics of a bag).
 Publishes ``left/image_raw``, ``right/image_raw`` (mono16 raw counts, never rescaled) and
 ``left/camera_info``, ``right/camera_info`` from camera_calibration YAML (file:// or
 package:// URLs), one identical stamp per pair; every Lepton counter, the pairing and the
@@ -139,6 +140,14 @@ class DriverNode(Node):
                 readers.append(LeptonReader(ReplayTransport(data, times), telemetry=mode,
                                             frame_gap_wait=False, no_video_s=1e9))
             return readers, [None, None], [None, None]
+        if self.source == 'bag':
+            from st_stereo.nodes.bag_source import open_bag_sides
+            return open_bag_sides(self._value('bag')), [None, None], [None, None]
+        if self.source == 'purethermal':
+            from st_stereo.lepton.purethermal import PureThermalReader
+            readers = [PureThermalReader(self._value(f'{side}_serial'),
+                                         self._value(f'{side}_video_device')) for side in SIDES]
+            return readers, [None, None], [None, None]
         if self.source == 'spi':
             from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
             from st_stereo.lepton.spi import SpiTransport
@@ -146,13 +155,14 @@ class DriverNode(Node):
             readers = [LeptonReader(SpiTransport(device, spi_hz), telemetry=telemetry, cci=cci)
                        for device, cci in zip(devices, ccis)]
             return readers, [None, None], ccis
-        raise ValueError(f'source: expected sim, capture or spi, got {self.source!r}')
+        raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
+                         f'{self.source!r}')
 
     # --- the reading thread -----------------------------------------------------------------
     def _run(self):
         clock_start = self.get_clock().now().nanoseconds * 1e-9
         wall_start = time.monotonic()
-        simulated = self.source == 'sim'
+        simulated = self.source in ('sim', 'bag')     # paced at real time
         base = None
         try:
             while not self._stop.is_set():
@@ -174,8 +184,8 @@ class DriverNode(Node):
                 if self.duration and frame.stamp - base > self.duration:
                     break
                 for pair in self.pairing.push(SIDES[side], frame):
-                    self._publish_pair(pair, clock_start if simulated or
-                                       self.source == 'capture' else 0.0, base)
+                    restamp = self.source in ('sim', 'capture')
+                    self._publish_pair(pair, clock_start if restamp else 0.0, base)
         except EndOfStream:
             pass
         except Exception as error:      # noqa: B902 - reported, the node stays up
@@ -185,8 +195,8 @@ class DriverNode(Node):
             self.finished.set()
 
     def _publish_pair(self, pair, clock_start, base):
-        # Simulated and recorded streams are re-stamped onto the node clock; SPI stamps are
-        # already wall time (packet-0 read times).
+        # Simulated streams and raw captures are re-stamped onto the node clock; SPI and
+        # PureThermal stamps are already wall time (read times); a bag keeps its stamps.
         stamp_s = clock_start + (pair.stamp - base) if clock_start else pair.stamp
         header = Header()
         header.stamp.sec = int(stamp_s)

@@ -4,7 +4,9 @@ SIDES = ('left', 'right')
 
 DRIVER_PARAMETERS = [
     ('source', 'sim', 'frame source: sim (two simulated cameras), capture (two raw capture '
-     'files) or spi (two Leptons on spidev)'),
+     'files), spi (two Leptons on spidev), purethermal (two PureThermal USB boards) or bag '
+     '(the raw image topics of a rosbag2)'),
+    ('bag', '', 'bag: rosbag2 directory holding left/image_raw and right/image_raw'),
     ('telemetry', 'off', 'camera telemetry rows: off, header or footer'),
     ('max_pair_delta', 0.05, 'largest stamp difference of a stereo pair, seconds'),
     ('duration', 0.0, 'stop after this many seconds of stream (0 = until the source ends)'),
@@ -16,6 +18,9 @@ DRIVER_PARAMETERS = [
         (f'{side}_capture', '', f'capture: raw capture file of the {side} camera'),
         (f'{side}_device', f'/dev/spidev0.{index}', f'spi: spidev device of the {side} camera'),
         (f'{side}_i2c_bus', index, f'spi: I2C bus number of the {side} camera CCI'),
+        (f'{side}_serial', '', f'purethermal: serial number of the {side} board'),
+        (f'{side}_video_device', f'/dev/video{2 * index}',
+         f'purethermal: V4L2 device of the {side} board'),
         (f'{side}_camera_info_url', f'package://st_stereo/config/calibration/{side}.yaml',
          f'{side} camera_calibration YAML (file:// or package://)'),
         (f'{side}_frame_id', f'stereo_{side}_optical_frame', f'{side} optical frame id'),

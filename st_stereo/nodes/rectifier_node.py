@@ -8,6 +8,7 @@ Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``,
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -15,6 +16,7 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 
+from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.sync import ExactTimeSync
@@ -35,6 +37,14 @@ class RectifierNode(Node):
                                                 RELIABLE, qos_overriding_options=overriding)
                           for side in ('left', 'right')]
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.declare_parameter('publish_mono8', False, ParameterDescriptor(
+            description='also publish left/image_rect_mono8, right/image_rect_mono8: '
+                        'contrast-stretched 8-bit copies for viewers (1st-99th percentile)'))
+        self.mono8_pubs = None
+        if self.get_parameter('publish_mono8').value:
+            self.mono8_pubs = [self.create_publisher(Image, f'{side}/image_rect_mono8',
+                                                     RELIABLE, qos_overriding_options=overriding)
+                               for side in ('left', 'right')]
         self.sync = ExactTimeSync(4, self._on_pair)
         for index, (kind, topic) in enumerate([(Image, 'left/image_raw'),
                                                (Image, 'right/image_raw'),
@@ -73,6 +83,10 @@ class RectifierNode(Node):
             pub.publish(conversions.image_to_msg(np.clip(np.rint(image), 0, 65535), header))
         for pub, info in zip(self.info_pubs, (left_info, right_info)):
             pub.publish(conversions.rectified_camera_info(info, header))
+        if self.mono8_pubs is not None:
+            for pub, image in zip(self.mono8_pubs, (left, right)):
+                pub.publish(conversions.image_to_msg(contrast_stretch_u8(image), header,
+                                                     'mono8'))
         self.counts['rectified'] += 1
 
     def _publish_diagnostics(self):

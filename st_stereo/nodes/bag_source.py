@@ -1,0 +1,72 @@
+"""The driver's ``bag`` source: the raw image topics of a rosbag2 as two frame streams."""
+
+import pathlib
+
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader
+from sensor_msgs.msg import Image
+from st_stereo.lepton.assembler import LeptonCounters
+from st_stereo.lepton.reader import EndOfStream, LeptonFrame
+from st_stereo.nodes.conversions import msg_to_image
+
+
+class _BagTime:
+    def __init__(self, side):
+        self.side = side
+        self.device = f'bag:{side.topic}'
+
+    def now(self):
+        return self.side.next_time()
+
+
+class BagSide:
+    """One camera's frames of a bag, with the reader's interface."""
+
+    def __init__(self, topic, messages):
+        self.topic = topic
+        self.messages = messages           # [(stamp, Image)], in bag order
+        self.position = 0
+        self.counters = LeptonCounters()
+        self.transport = _BagTime(self)
+        self.start = messages[0][0] if messages else 0.0
+
+    def next_time(self):
+        """Time of the next frame relative to the first (for pacing and interleaving)."""
+        if self.position >= len(self.messages):
+            return float('inf')
+        return self.messages[self.position][0] - self.start
+
+    def read_frame(self, timeout_s=1.0):
+        """Return the next frame; EndOfStream after the last."""
+        if self.position >= len(self.messages):
+            raise EndOfStream()
+        stamp, msg = self.messages[self.position]
+        self.position += 1
+        self.counters.frames_completed += 1
+        try:
+            pixels = msg_to_image(msg, 'mono16')
+        except ValueError:
+            self.counters.frames_aborted += 1
+            return None
+        self.counters.unique_frames += 1
+        return LeptonFrame(pixels.copy(), stamp, self.position - 1)
+
+
+def open_bag_sides(path):
+    """Open the left and right image_raw streams of a bag (topics ending in side/image_raw)."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'{path}: no such bag')
+    streams = {'left': [], 'right': []}
+    with Reader(path) as reader:
+        wanted = {c.id: side for c in reader.connections for side in streams
+                  if c.topic.endswith(f'{side}/image_raw')}
+        if set(wanted.values()) != set(streams):
+            raise ValueError(f'{path}: expected topics ending in left/image_raw and '
+                             f'right/image_raw, found {sorted(reader.topics)}')
+        for connection, _, data in reader.messages(
+                connections=[c for c in reader.connections if c.id in wanted]):
+            msg = deserialize_message(bytes(data), Image)
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            streams[wanted[connection.id]].append((stamp, msg))
+    return [BagSide(f'{side}/image_raw', streams[side]) for side in ('left', 'right')]
