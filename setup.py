@@ -35,6 +35,7 @@ setup(
             'stereo_pipeline = st_stereo.nodes.pipeline:main',
             'bag_record = st_stereo.nodes.bags:record_main',
             'bag_play = st_stereo.nodes.bags:play_main',
+            'st-stereo-latency = st_stereo.nodes.latency_bench:main',
         ],
     },
 )

@@ -1,0 +1,128 @@
+"""
+Latency and CPU of the node suite: image stamp -> ``points2`` received, one process and three.
+
+One process: driver (sim), rectifier, matcher and a monitor on one executor. Across processes:
+the three nodes as separate processes, the monitor here. Latency is the receipt time of each
+point cloud minus its header stamp (the stamp is the time packet 0 of the pair's frames was
+read, so reading, pairing, rectifying, matching and transport are all in it). CPU is the CPU
+time of the node processes over the run, in % of one core.
+"""
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import psutil
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from st_stereo.nodes.driver_node import DriverNode
+from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.pipeline import SuiteMonitor
+from st_stereo.nodes.rectifier_node import RectifierNode
+
+NODE_MODULES = ('st_stereo.nodes.driver_node', 'st_stereo.nodes.rectifier_node',
+                'st_stereo.nodes.matcher_node')
+
+
+def _cpu_seconds(process):
+    times = process.cpu_times()
+    return times.user + times.system
+
+
+def _summary(monitor, cpu_seconds, wall_seconds, warmup):
+    latencies = np.array(monitor.latencies[warmup:]) * 1e3
+    rate = 0.0
+    if len(monitor.times) > warmup + 1:
+        rate = (len(monitor.times) - warmup - 1) / (monitor.times[-1] - monitor.times[warmup])
+    return {'clouds': len(monitor.times), 'rate_hz': rate,
+            'latency_median_ms': float(np.median(latencies)) if len(latencies) else float('nan'),
+            'latency_p99_ms': float(np.percentile(latencies, 99)) if len(latencies)
+            else float('nan'),
+            'cpu_percent_of_one_core': 100.0 * cpu_seconds / wall_seconds}
+
+
+def one_process(seconds, warmup=8):
+    """Run the suite in this process for ``seconds``; returns the summary."""
+    rclpy.init()
+    nodes = [DriverNode(parameter_overrides=[Parameter('duration', value=float(seconds))]),
+             RectifierNode(), MatcherNode(), SuiteMonitor()]
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    process = psutil.Process()
+    cpu_start, wall_start = _cpu_seconds(process), time.monotonic()
+    try:
+        while not nodes[0].finished.is_set():
+            executor.spin_once(timeout_sec=0.05)
+        cpu = _cpu_seconds(process) - cpu_start
+        wall = time.monotonic() - wall_start
+        return _summary(nodes[-1], cpu, wall, warmup)
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def three_processes(seconds, warmup=8):
+    """Run driver, rectifier and matcher as processes, the monitor here; returns the summary."""
+    env = dict(os.environ)
+    commands = []
+    for module in NODE_MODULES:
+        extra = ['-p', f'duration:={float(seconds)}'] if 'driver' in module else []
+        commands.append([sys.executable, '-c', f'from {module} import main; main()',
+                         '--ros-args', *extra])
+    rclpy.init()
+    monitor = SuiteMonitor()
+    executor = SingleThreadedExecutor()
+    executor.add_node(monitor)
+    processes = [subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL) for command in commands]
+    handles = [psutil.Process(p.pid) for p in processes]
+    try:
+        wall_start = time.monotonic()
+        cpu_start = sum(_cpu_seconds(h) for h in handles)
+        deadline = wall_start + seconds + 20.0
+        last_cloud = time.monotonic()
+        while time.monotonic() < deadline:
+            count = len(monitor.times)
+            executor.spin_once(timeout_sec=0.05)
+            if len(monitor.times) != count:
+                last_cloud = time.monotonic()
+            elif monitor.times and time.monotonic() - last_cloud > 3.0:
+                break          # the driver's stream ended
+        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
+        wall = time.monotonic() - wall_start
+        return _summary(monitor, cpu, wall, warmup)
+    finally:
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        monitor.destroy_node()
+        rclpy.try_shutdown()
+
+
+def main(argv=None):
+    """Print the latency / CPU table of both layouts."""
+    import argparse
+    parser = argparse.ArgumentParser(prog='st-stereo-latency', description=__doc__)
+    parser.add_argument('--seconds', type=float, default=20.0, help='stream per layout')
+    args = parser.parse_args(argv)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    rows = {'one process': one_process(args.seconds),
+            'three processes': three_processes(args.seconds)}
+    print('| layout | point clouds | rate Hz | latency median ms | latency p99 ms | '
+          'CPU % of one core |')
+    print('|---|---|---|---|---|---|')
+    for name, row in rows.items():
+        print(f'| {name} | {row["clouds"]} | {row["rate_hz"]:.2f} | '
+              f'{row["latency_median_ms"]:.1f} | {row["latency_p99_ms"]:.1f} | '
+              f'{row["cpu_percent_of_one_core"]:.1f} |')
+    return 0
