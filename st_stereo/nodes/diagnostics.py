@@ -7,7 +7,7 @@ diagnostic_updater's FrequencyStatus; ``status`` builds a DiagnosticStatus from 
 
 import collections
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
@@ -67,3 +67,11 @@ def status(name, hardware_id, level, message, values):
     out.message = message
     out.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
     return out
+
+
+def publish(node, publisher, statuses):
+    """Publish statuses as one DiagnosticArray stamped with the node's clock."""
+    array = DiagnosticArray()
+    array.header.stamp = node.get_clock().now().to_msg()
+    array.status = list(statuses)
+    publisher.publish(array)

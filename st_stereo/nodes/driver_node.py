@@ -18,8 +18,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -30,6 +28,7 @@ from st_stereo.lepton.pairing import PairSynchronizer
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.driver_parameters import DRIVER_PARAMETERS, SIDES
+from st_stereo.nodes.runtime import spin_node
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -274,10 +273,7 @@ class DriverNode(Node):
             statuses.append(diagnostics.status(
                 f'{self.get_name()}: {SIDES[index]} camera', hardware, level,
                 f'{counters["unique_frames"]} frames, {lost} lost', counters))
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = statuses
-        self.diagnostics_pub.publish(array)
+        diagnostics.publish(self, self.diagnostics_pub, statuses)
 
     def destroy_node(self):
         """Stop the reading thread, then the node."""
@@ -288,12 +284,4 @@ class DriverNode(Node):
 
 def main(args=None):
     """Run the driver node."""
-    rclpy.init(args=args)
-    node = DriverNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(DriverNode, args)

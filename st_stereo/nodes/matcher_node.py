@@ -10,8 +10,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -20,6 +18,7 @@ from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
+from st_stereo.nodes.runtime import spin_node
 from st_stereo.nodes.sync import ExactTimeSync
 from stereo_msgs.msg import DisparityImage
 
@@ -114,21 +113,11 @@ class MatcherNode(Node):
                            result.timings_ms.items()})
         if self.last_error:
             level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = [diagnostics.status(f'{self.get_name()}: ST matching', 'st_stereo',
-                                           level, summary, values)]
-        self.diagnostics_pub.publish(array)
+        status = diagnostics.status(f'{self.get_name()}: ST matching', 'st_stereo',
+                                    level, summary, values)
+        diagnostics.publish(self, self.diagnostics_pub, [status])
 
 
 def main(args=None):
     """Run the matcher node."""
-    rclpy.init(args=args)
-    node = MatcherNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(MatcherNode, args)

@@ -9,8 +9,6 @@ Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``,
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -19,6 +17,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
+from st_stereo.nodes.runtime import spin_node
 from st_stereo.nodes.sync import ExactTimeSync
 
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -98,21 +97,11 @@ class RectifierNode(Node):
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         elif not self.counts['rectified']:
             level, message = diagnostics.WARN, 'no pair rectified yet'
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = [diagnostics.status(f'{self.get_name()}: rectification', 'st_stereo',
-                                           level, message, values)]
-        self.diagnostics_pub.publish(array)
+        status = diagnostics.status(f'{self.get_name()}: rectification', 'st_stereo',
+                                    level, message, values)
+        diagnostics.publish(self, self.diagnostics_pub, [status])
 
 
 def main(args=None):
     """Run the rectifier node."""
-    rclpy.init(args=args)
-    node = RectifierNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(RectifierNode, args)
