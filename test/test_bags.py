@@ -1,5 +1,6 @@
 """rosbag2 record / replay through the suite, and a bag written by rosbags alone."""
 
+import pathlib
 import time
 
 import numpy as np
@@ -14,7 +15,7 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from sensor_msgs.msg import PointCloud2
-from st_stereo.core.calibration_defaults import default_rig_calibrations
+from st_stereo.core.camera_calibration import load_calibration
 from st_stereo.core.fourier import fourier_shift_image_x
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes.bags import BagPlayer, BagRecorder
@@ -23,6 +24,9 @@ from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
 from std_msgs.msg import Header
+
+
+CALIBRATION = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'calibration'
 
 
 class Clouds(Node):
@@ -95,7 +99,8 @@ def test_record_then_replay_twice_gives_identical_matches(tmp_path):
 
 def write_external_bag(bag, texture, depth, pairs=20):
     """Write a bag with rosbags alone (sqlite3, metadata v8): a plane at ``depth``."""
-    left_cal, right_cal = default_rig_calibrations()
+    left_cal, right_cal = (load_calibration(CALIBRATION / f'{side}.yaml')
+                           for side in ('left', 'right'))
     model = StereoModel.from_projection_matrices(left_cal.projection, right_cal.projection)
     texture = 7800 + (texture - texture.min()) * 800 / np.ptp(texture)
     right_image = fourier_shift_image_x(texture, float(model.disparity_of_depth(depth)))

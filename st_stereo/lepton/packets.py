@@ -117,12 +117,6 @@ def pixels_from_payloads(payloads):
     return np.frombuffer(payloads, dtype='>u2').astype(np.uint16).reshape(-1, PIXELS_PER_ROW)
 
 
-def packet_ids(chunk, packet_bytes=RAW14_PACKET_BYTES):
-    """Return the ID of every packet of a chunk of whole packets, as a list (vectorised)."""
-    words = np.frombuffer(chunk, dtype='>u2').reshape(-1, packet_bytes // 2)
-    return words[:, 0].tolist()
-
-
 def packet_heads(chunk, packet_bytes=RAW14_PACKET_BYTES):
     """Return the IDs and CRC fields of every packet of a chunk, as two lists (vectorised)."""
     words = np.frombuffer(chunk, dtype='>u2').reshape(-1, packet_bytes // 2)
