@@ -91,6 +91,9 @@ def parameters_yaml():
              '/**/lepton_driver:', '  ros__parameters:']
     for name, default, description in DRIVER_PARAMETERS:
         lines += [f'    # {description}', f'    {name}: {_yaml_value(default)}']
+    lines += ['/**/rectifier:', '  ros__parameters:',
+              '    # also publish contrast-stretched 8-bit copies of the rectified images '
+              '(viewers)', '    publish_mono8: false']
     lines += ['/**/matcher:', '  ros__parameters:',
               '    # expected rate of point clouds (diagnostics), Hz',
               '    target_frequency: 8.7']

@@ -31,7 +31,7 @@ CALIBRATION = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'calibrat
 
 class Clouds(Node):
     def __init__(self, context):
-        super().__init__('clouds', context=context)
+        super().__init__('clouds', context=context, namespace='stereo')
         self.by_stamp = {}
         self.create_subscription(PointCloud2, 'points2', self._on_cloud,
                                  qos_profile_sensor_data)
@@ -107,7 +107,7 @@ def write_external_bag(bag, texture, depth, pairs=20):
     typestore = get_typestore(Stores.ROS2_HUMBLE)     # written by another distribution
     with Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
         connections = {
-            name: writer.add_connection(f'/{name}', msgtype, typestore=typestore)
+            name: writer.add_connection(f'/stereo/{name}', msgtype, typestore=typestore)
             for name, msgtype in (('left/image_raw', 'sensor_msgs/msg/Image'),
                                   ('right/image_raw', 'sensor_msgs/msg/Image'),
                                   ('left/camera_info', 'sensor_msgs/msg/CameraInfo'),
@@ -166,4 +166,19 @@ def test_driver_bag_source_feeds_the_suite(tmp_path, people_80x60):
     finally:
         for node in nodes:
             node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_stepping_publishes_one_message_per_step(tmp_path, people_80x60):
+    bag = tmp_path / 'steps'
+    write_external_bag(bag, people_80x60, 3.0, pairs=3)
+    context, _ = new_context()
+    player = BagPlayer(bag, context=context)
+    steps = []
+    try:
+        assert player.play(step=lambda: steps.append(time.monotonic())) == 12
+        assert len(steps) == 12
+    finally:
+        player.close()
+        player.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -29,3 +29,13 @@ def test_default_rig_calibration_is_a_rectified_pair():
     assert (left.width, left.height) == (80, 60)
     assert left.camera_matrix[0, 0] == pytest.approx(83.9, abs=0.05)
     assert rectifier.model.fx * rectifier.model.baseline == pytest.approx(46.3, abs=0.01)
+
+
+def test_launch_file_is_valid_python_with_a_launch_description():
+    import ast
+    source = (CONFIG.parent / 'launch' / 'st_stereo.launch.py').read_text()
+    tree = ast.parse(source)         # launch itself is not installable here: check the file
+    names = {node.name for node in tree.body if isinstance(node, ast.FunctionDef)}
+    assert 'generate_launch_description' in names
+    for executable in ('lepton_driver', 'rectifier', 'matcher'):
+        assert f"executable='{executable}'" in source

@@ -45,7 +45,7 @@ def ros():
 
 class Collector(Node):
     def __init__(self, context):
-        super().__init__('collector', context=context)
+        super().__init__('collector', context=context, namespace='stereo')
         self.clouds, self.statuses = [], {}
         self.create_subscription(PointCloud2, 'points2', self.clouds.append,
                                  qos_profile_sensor_data)

@@ -11,6 +11,7 @@ topic's recorded bytes unchanged, with its recorded type and QoS, at the recorde
 import argparse
 import importlib
 import pathlib
+import sys
 import time
 
 import rclpy
@@ -21,6 +22,7 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
+from st_stereo.nodes.runtime import with_default_namespace
 
 RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
                    'right/camera_info')
@@ -59,7 +61,7 @@ class BagRecorder(Node):
     """Record topics (raw bytes) into an MCAP rosbag2."""
 
     def __init__(self, path, topics, **kwargs):
-        super().__init__('bag_record', **kwargs)
+        super().__init__('bag_record', **with_default_namespace(kwargs))
         self.path = pathlib.Path(path)
         if self.path.exists():
             raise FileExistsError(f'{self.path}: the bag already exists')
@@ -118,8 +120,13 @@ class BagPlayer(Node):
         self.clock_pub = self.create_publisher(Clock, '/clock', 10) if publish_clock else None
         self.published = 0
 
-    def play(self, stop=None, spin=None):
-        """Publish every message at the recorded pace; returns the number published."""
+    def play(self, stop=None, spin=None, step=None):
+        """
+        Publish every message at the recorded pace; returns the number published.
+
+        With ``step`` (a callable), the pace is ignored: ``step()`` is called before each
+        message and playback goes on when it returns (stepping through a bag).
+        """
         connections = [c for c in self.reader.connections if c.id in self.publishers_by_id]
         start_wall = time.monotonic()
         start_bag = None
@@ -128,8 +135,10 @@ class BagPlayer(Node):
                 break
             if start_bag is None:
                 start_bag = timestamp
+            if step is not None:
+                step()
             due = start_wall + (timestamp - start_bag) * 1e-9 / self.rate
-            while True:
+            while step is None:
                 wait = due - time.monotonic()
                 if wait <= 0:
                     break
@@ -175,13 +184,16 @@ def play_main(argv=None):
     parser.add_argument('bag')
     parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor')
     parser.add_argument('--clock', action='store_true', help='publish /clock')
+    parser.add_argument('--step', action='store_true',
+                        help='publish one message per line read on standard input')
     parser.add_argument('--topics', nargs='*', help='only these topics')
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['bag_play', *ros_args] if ros_args else None)
     node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
     try:
         time.sleep(0.5)      # let subscribers discover the publishers
-        count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s))
+        step = (lambda: sys.stdin.readline()) if args.step else None
+        count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s), step=step)
         print(f'published {count} messages from {args.bag}')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -28,7 +28,7 @@ from st_stereo.lepton.pairing import PairSynchronizer
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.driver_parameters import DRIVER_PARAMETERS, SIDES
-from st_stereo.nodes.runtime import spin_node
+from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -58,7 +58,7 @@ class DriverNode(Node):
     """Thin wrapper: Lepton readers + pairing -> image / camera_info messages."""
 
     def __init__(self, **kwargs):
-        super().__init__('lepton_driver', **kwargs)
+        super().__init__('lepton_driver', **with_default_namespace(kwargs))
         for name, default, description in DRIVER_PARAMETERS:
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         value = self._value

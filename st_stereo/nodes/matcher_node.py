@@ -18,7 +18,7 @@ from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
-from st_stereo.nodes.runtime import spin_node
+from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from st_stereo.nodes.sync import ExactTimeSync
 from stereo_msgs.msg import DisparityImage
 
@@ -29,7 +29,7 @@ class MatcherNode(Node):
     """Thin wrapper: messages -> StereoMatcher -> messages."""
 
     def __init__(self, **kwargs):
-        super().__init__('matcher', **kwargs)
+        super().__init__('matcher', **with_default_namespace(kwargs))
         self.config = declare_st_parameters(self)
         self.declare_parameter('target_frequency', 8.7)
         self.add_on_set_parameters_callback(self._on_parameters)

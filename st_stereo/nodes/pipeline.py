@@ -19,6 +19,7 @@ from st_stereo.nodes.conversions import point_cloud_array
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
+from st_stereo.nodes.runtime import with_default_namespace
 
 
 def build_nodes(args=None):
@@ -29,8 +30,8 @@ def build_nodes(args=None):
 class SuiteMonitor(Node):
     """Watches ``points2``: frequency, stamp-to-receipt latency, matches, depth."""
 
-    def __init__(self):
-        super().__init__('suite_monitor')
+    def __init__(self, **kwargs):
+        super().__init__('suite_monitor', **with_default_namespace(kwargs))
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
         self.times, self.latencies, self.matches, self.depths = [], [], [], []

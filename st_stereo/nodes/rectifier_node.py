@@ -17,7 +17,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
-from st_stereo.nodes.runtime import spin_node
+from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from st_stereo.nodes.sync import ExactTimeSync
 
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -27,7 +27,7 @@ class RectifierNode(Node):
     """Thin wrapper: raw pair + infos -> StereoRectifier -> rectified pair + infos."""
 
     def __init__(self, **kwargs):
-        super().__init__('rectifier', **kwargs)
+        super().__init__('rectifier', **with_default_namespace(kwargs))
         overriding = QoSOverridingOptions.with_default_policies()
         self.image_pubs = [self.create_publisher(Image, f'{side}/image_rect', RELIABLE,
                                                  qos_overriding_options=overriding)

@@ -3,6 +3,16 @@
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
+# Topics are relative: by default they live under this namespace (``-r __ns:=/x`` moves them).
+DEFAULT_NAMESPACE = 'stereo'
+
+
+def with_default_namespace(kwargs):
+    """Node keyword arguments with ``namespace`` defaulting to ``DEFAULT_NAMESPACE``."""
+    kwargs = dict(kwargs)
+    kwargs.setdefault('namespace', DEFAULT_NAMESPACE)
+    return kwargs
+
 
 def spin_node(factory, args=None):
     """Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown."""
