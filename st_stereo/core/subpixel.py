@@ -223,7 +223,8 @@ def _poc_offsets(left_spectra, right_windows, config):
     safe_peak = np.where(inside, peak_col, size // 2)
     band_ratio = (2 * band_half_width(size, config.poc_band) + 1) / size
     delta, denominator = nagashima_peak_offset(profiles, safe_peak, band_ratio)
-    return delta, denominator, inside, peak_value
+    lag = peak_col - half          # integer lag of the peak; the model's delta is about -lag
+    return delta, denominator, inside, peak_value, lag
 
 
 def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
@@ -260,8 +261,8 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
     iterations = 1 if config.poc_estimator == 'nagashima' else config.poc_iterations
     if iterations == 1:
         right_windows = extract_windows(right_image, y, x_right, size)
-        delta, denominator, inside, peak_value = _poc_offsets(left_spectra, right_windows,
-                                                              config)
+        delta, denominator, inside, peak_value, _ = _poc_offsets(left_spectra, right_windows,
+                                                                 config)
         total = delta
     else:
         strips = extract_strips(right_image, y, x_right, size, RECENTRE_MARGIN)
@@ -274,9 +275,11 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
                 right_windows = strips[:, :, centre]
             else:
                 right_windows = shifter.shift(-total, centre)
-            delta, denominator, inside, peak_value = _poc_offsets(left_spectra, right_windows,
-                                                                  config)
-            delta = np.where(inside & (denominator > 1e-12), delta, 0.0)
+            delta, denominator, inside, peak_value, lag = _poc_offsets(
+                left_spectra, right_windows, config)
+            # A peak too near the window edge for the fit: re-centre by its integer lag
+            # first (the strip allows it) and fit on the next iteration.
+            delta = np.where(inside, np.where(denominator > 1e-12, delta, 0.0), -lag)
             total = np.clip(total + delta, -2.0 * config.poc_max_shift,
                             2.0 * config.poc_max_shift)
     degenerate = inside & ~(denominator > 1e-12)
