@@ -19,7 +19,7 @@ from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
-from st_stereo.nodes.sync import ExactTimeSync
+from st_stereo.nodes.sync import subscribe_exact
 from stereo_msgs.msg import DisparityImage
 
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -40,13 +40,9 @@ class MatcherNode(Node):
         self.disparity_pub = self.create_publisher(DisparityImage, 'disparity', RELIABLE,
                                                    qos_overriding_options=overriding)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.sync = ExactTimeSync(4, self._on_pair)
-        for index, (kind, topic) in enumerate([(Image, 'left/image_rect'),
-                                               (Image, 'right/image_rect'),
-                                               (CameraInfo, 'left/camera_info_rect'),
-                                               (CameraInfo, 'right/camera_info_rect')]):
-            self.create_subscription(kind, topic, lambda msg, i=index: self.sync.add(i, msg),
-                                     qos_profile_sensor_data)
+        topics = [(Image, 'left/image_rect'), (Image, 'right/image_rect'),
+                  (CameraInfo, 'left/camera_info_rect'), (CameraInfo, 'right/camera_info_rect')]
+        self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0}

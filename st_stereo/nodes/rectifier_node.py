@@ -18,7 +18,7 @@ from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
-from st_stereo.nodes.sync import ExactTimeSync
+from st_stereo.nodes.sync import subscribe_exact
 
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -44,13 +44,9 @@ class RectifierNode(Node):
             self.mono8_pubs = [self.create_publisher(Image, f'{side}/image_rect_mono8',
                                                      RELIABLE, qos_overriding_options=overriding)
                                for side in ('left', 'right')]
-        self.sync = ExactTimeSync(4, self._on_pair)
-        for index, (kind, topic) in enumerate([(Image, 'left/image_raw'),
-                                               (Image, 'right/image_raw'),
-                                               (CameraInfo, 'left/camera_info'),
-                                               (CameraInfo, 'right/camera_info')]):
-            self.create_subscription(kind, topic, lambda msg, i=index: self.sync.add(i, msg),
-                                     qos_profile_sensor_data)
+        topics = [(Image, 'left/image_raw'), (Image, 'right/image_raw'),
+                  (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
+        self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
         self.rectifier = None
         self._calibration_key = None
         self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0}

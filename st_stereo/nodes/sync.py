@@ -48,3 +48,15 @@ class ExactTimeSync:
         for index, slot in enumerate(self.pending.pop(key)):
             if slot is not None:
                 self.dropped[index] += 1
+
+
+def subscribe_exact(node, topics, callback, qos):
+    """
+    Subscribe to ``[(msg_type, topic), ...]`` and call back with one message of each topic.
+
+    Returns the ExactTimeSync (its ``dropped`` counts go to diagnostics).
+    """
+    sync = ExactTimeSync(len(topics), callback)
+    for index, (msg_type, topic) in enumerate(topics):
+        node.create_subscription(msg_type, topic, lambda msg, i=index: sync.add(i, msg), qos)
+    return sync
