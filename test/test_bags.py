@@ -52,6 +52,12 @@ def spin_for(executor, seconds):
         executor.spin_once(timeout_sec=0.02)
 
 
+def spin_until_finished(executor, driver, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while not driver.finished.is_set() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+
+
 def replay(bag, rate=0.5):
     context, executor = new_context()
     nodes = [RectifierNode(context=context), MatcherNode(context=context), Clouds(context)]
@@ -80,9 +86,7 @@ def test_record_then_replay_twice_gives_identical_matches(tmp_path):
     for node in (recorder, driver):
         executor.add_node(node)
     try:
-        deadline = time.monotonic() + 60
-        while not driver.finished.is_set() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
+        spin_until_finished(executor, driver, 60.0)
         spin_for(executor, 0.5)
     finally:
         recorder.close()
@@ -152,9 +156,7 @@ def test_driver_bag_source_feeds_the_suite(tmp_path, people_80x60):
     for node in nodes:
         executor.add_node(node)
     try:
-        deadline = time.monotonic() + 60
-        while not driver.finished.is_set() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
+        spin_until_finished(executor, driver, 60.0)
         spin_for(executor, 1.0)
         clouds = nodes[-1].by_stamp
         assert driver.published >= 14 and len(clouds) >= 10
