@@ -1,0 +1,243 @@
+"""
+Simulated sequences of the ceiling rig: an office, people walking, standing and sitting.
+
+The room (5 m x 7 m, 3 m high) has a floor with real thermal texture (a shared frame), walls
+warmer near the ceiling, a desk with a warm screen, a radiator under the far wall, a wall-mounted
+electrical panel (the shared FLIR C2 panel frame as its texture), a cabinet and a chair. People
+follow keyframed paths; a sequence renders both raw frames through two Lepton sensor models and
+the ground truth of every frame.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from st_stereo.core.image_io import read_thermal_image
+from st_stereo.sim import people
+from st_stereo.sim.render import ground_truth, render_temperature
+from st_stereo.sim.rig import realistic_rig, RigGeometry
+from st_stereo.sim.scene import Box, normalised_texture, RoomShell, Scene, ThermalMaterial
+from st_stereo.sim.sensor import LeptonSensor, SensorModel
+
+AMBIENT = 21.0
+LABELS = {0: 'floor', 1: 'wall', 2: 'ceiling', 3: 'desk', 4: 'screen', 5: 'radiator',
+          6: 'panel', 7: 'cabinet', 8: 'chair'}
+PERSON_LABEL_BASE = 100
+STRIDE_M = 1.4
+
+
+def load_textures(blur_texels=1.0):
+    """
+    Zero-mean unit-std textures from the shared thermal frames (floor, walls, panel).
+
+    Each is low-pass filtered (Gaussian, ``blur_texels``) so that, with the texel sizes of
+    ``office_room``, no texture detail is finer than the renderer's ray spacing: detail that
+    fine would alias differently in the two views and act as noise no real scene has.
+    """
+    from st_stereo.tools.data import shared_frame
+    return {name: normalised_texture(ndimage.gaussian_filter(
+                read_thermal_image(shared_frame(file)), blur_texels, mode='wrap'))
+            for name, file in (('floor', 'floor_heating.png'), ('wall', 'ducks.png'),
+                               ('panel', 'panel_flir_c2_80x60.png'))}
+
+
+def office_room(textures, chair=(-0.6, 3.3)):
+    """The static office: shell faces and furniture (labels in ``LABELS``)."""
+    floor = ThermalMaterial(base=AMBIENT - 0.5, gradient=(0.0, 0.15, 0.0),
+                            texture=textures['floor'], texel_m=0.04, texture_kelvin=0.6,
+                            ambient=AMBIENT, seed=11)
+    def wall(axes, seed):
+        return ThermalMaterial(base=AMBIENT, gradient=(0.0, 0.0, 0.4),
+                               texture=textures['wall'], texture_axes=axes, texel_m=0.03,
+                               texture_kelvin=0.3, ambient=AMBIENT, seed=seed)
+    side_axes = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    end_axes = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    shell = RoomShell(
+        low=(-2.5, -0.5, 0.0), high=(2.5, 6.5, 3.0),
+        materials={'x-': wall(side_axes, 12), 'x+': wall(side_axes, 13),
+                   'y-': wall(end_axes, 14), 'y+': wall(end_axes, 15), 'floor': floor,
+                   'ceiling': ThermalMaterial(base=AMBIENT + 1.5, ambient=AMBIENT)},
+        labels={'x-': 1, 'x+': 1, 'y-': 1, 'y+': 1, 'floor': 0, 'ceiling': 2})
+    fins = np.tile(np.sin(np.linspace(0, 2 * np.pi, 8, endpoint=False)), (8, 1))
+    cx, cy = chair
+    objects = [
+        Box('desk', 3, (0.7, 4.0, 0.0), (2.0, 4.8, 0.74),
+            ThermalMaterial(base=AMBIENT + 0.3, noise_kelvin=0.15, ambient=AMBIENT, seed=21)),
+        Box('screen', 4, (1.05, 4.5, 0.78), (1.65, 4.56, 1.15),
+            ThermalMaterial(base=31.0, gradient=(0.0, 0.0, 6.0), origin=(0, 0, 0.78),
+                            noise_kelvin=0.3, ambient=AMBIENT, seed=22)),
+        Box('radiator', 5, (-1.6, 6.38, 0.15), (-0.3, 6.5, 0.75),
+            ThermalMaterial(base=41.0, texture=fins, texture_axes=end_axes, texel_m=0.012,
+                            texture_kelvin=2.5, ambient=AMBIENT, seed=23)),
+        Box('panel', 6, (-2.5, 3.4, 0.9), (-2.42, 4.6, 1.8),
+            ThermalMaterial(base=AMBIENT + 3.0, texture=textures['panel'],
+                            texture_axes=side_axes, texel_m=0.015, texture_kelvin=2.0,
+                            origin=(-2.5, 3.6, 1.0), ambient=AMBIENT, seed=24)),
+        Box('cabinet', 7, (1.9, 1.6, 0.0), (2.5, 2.6, 1.9),
+            ThermalMaterial(base=AMBIENT - 0.3, gradient=(0.0, 0.0, 0.3), noise_kelvin=0.1,
+                            ambient=AMBIENT, seed=25)),
+        Box('chair', 8, (cx - 0.23, cy - 0.23, 0.40), (cx + 0.23, cy + 0.23, 0.46),
+            ThermalMaterial(base=AMBIENT + 1.0, noise_kelvin=0.2, ambient=AMBIENT, seed=26)),
+        Box('chair_back', 8, (cx - 0.23, cy - 0.28, 0.46), (cx + 0.23, cy - 0.23, 0.9),
+            ThermalMaterial(base=AMBIENT + 0.6, ambient=AMBIENT, seed=27)),
+    ]
+    return shell, objects
+
+
+@dataclasses.dataclass(frozen=True)
+class Keyframe:
+    """A person's floor position (metres) and sitting weight at time ``t`` (seconds)."""
+
+    t: float
+    x: float
+    y: float
+    sitting: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class PersonScript:
+    """Keyframed path of one person; between keyframes position and sitting are linear."""
+
+    keyframes: tuple
+    look: people.PersonLook = people.PersonLook()
+    heading_rad: float = 0.0
+
+    def pose(self, t):
+        """The person's PersonPose at time ``t``: heading from motion, gait from distance."""
+        frames = self.keyframes
+        times = np.array([k.t for k in frames])
+        xs, ys = np.array([k.x for k in frames]), np.array([k.y for k in frames])
+        x, y = float(np.interp(t, times, xs)), float(np.interp(t, times, ys))
+        sitting = float(np.interp(t, times, [k.sitting for k in frames]))
+        # Distance walked so far (for the gait phase) and the current velocity.
+        grid = np.linspace(times[0], max(min(t, times[-1]), times[0]), 200)
+        path = np.column_stack([np.interp(grid, times, xs), np.interp(grid, times, ys)])
+        walked = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        dt = 0.1
+        vx = (np.interp(t + dt, times, xs) - np.interp(t - dt, times, xs)) / (2 * dt)
+        vy = (np.interp(t + dt, times, ys) - np.interp(t - dt, times, ys)) / (2 * dt)
+        speed = math.hypot(vx, vy)
+        heading = self.heading_rad
+        if speed > 0.05:
+            heading = math.atan2(-vx, vy)
+        else:
+            # Keep the heading of the last motion (or of the script).
+            for k0, k1 in zip(frames[:-1], frames[1:]):
+                if k1.t <= t and (k1.x, k1.y) != (k0.x, k0.y):
+                    heading = math.atan2(-(k1.x - k0.x), k1.y - k0.y)
+        return people.PersonPose(x=x, y=y, heading_rad=heading,
+                                 gait_phase=2 * math.pi * walked / STRIDE_M,
+                                 gait_amplitude_rad=0.45 * min(speed / 1.0, 1.0),
+                                 sitting=sitting)
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceSpec:
+    """A named sequence: rig, people, duration, frame rate, sensor seeds."""
+
+    name: str
+    description: str
+    people: tuple
+    duration_s: float = 10.0
+    fps: float = 8.7
+    rig: RigGeometry = RigGeometry()
+    ffc_at_s: tuple = (60.0, 200.0)
+
+    @property
+    def frame_times(self):
+        """Acquisition times of the frames, seconds from the start."""
+        return np.arange(int(round(self.duration_s * self.fps))) / self.fps
+
+
+def _walker(path, look, start=0.0, speed=1.0, pause=0.0):
+    """Keyframes walking through ``path`` points at ``speed`` m/s, pausing at each point."""
+    frames, t = [Keyframe(start, *path[0])], start
+    for a, b in zip(path[:-1], path[1:]):
+        t += pause
+        frames.append(Keyframe(t, *a))
+        t += math.dist(a, b) / speed
+        frames.append(Keyframe(t, *b))
+    return PersonScript(tuple(frames), look)
+
+
+def standard_sequences():
+    """The evaluation sequences (people at 2.5-4.5 m from the rig) and the default recording."""
+    tall = people.PersonLook(height_m=1.80, seed=1)
+    short = people.PersonLook(height_m=1.65, skin=34.0, top=30.0, trousers=27.5, seed=2)
+    sitter = PersonScript((Keyframe(0.0, -1.4, 4.6), Keyframe(3.0, -0.6, 3.4),
+                           Keyframe(4.0, -0.6, 3.4, 1.0), Keyframe(8.0, -0.6, 3.4, 1.0),
+                           Keyframe(9.0, -0.6, 3.4, 0.0), Keyframe(12.0, 0.8, 2.6)),
+                          short, heading_rad=math.pi)
+    return {
+        'walk_across': SequenceSpec(
+            'walk_across', 'one person walks across the room and back, 2.8-4.6 m away',
+            (_walker([(-1.4, 2.6), (1.4, 2.6), (1.2, 3.8), (-1.4, 3.8)], tall, speed=1.1),),
+            duration_s=8.0, rig=realistic_rig()),
+        'two_people': SequenceSpec(
+            'two_people', 'one person walks diagonally past another who stands and turns',
+            (_walker([(-1.3, 2.3), (1.0, 4.3)], tall, speed=0.9),
+             PersonScript((Keyframe(0.0, 0.9, 2.8), Keyframe(8.0, 0.9, 2.8)), short,
+                          heading_rad=math.pi * 0.8)),
+            duration_s=8.0, rig=realistic_rig()),
+        'sit_down': SequenceSpec(
+            'sit_down', 'a person walks to a chair, sits, stands up and leaves',
+            (sitter,), duration_s=12.0, rig=realistic_rig()),
+        'office': SequenceSpec(
+            'office', 'the bundled recording: one person walks around, one sits down',
+            (_walker([(1.5, 2.2), (-1.0, 2.5), (-1.2, 4.0), (1.2, 3.9), (1.0, 2.4)], tall,
+                     speed=0.9), sitter),
+            duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0)),
+    }
+
+
+class SequenceRenderer:
+    """Renders a SequenceSpec frame by frame: raw 14-bit pair, temperatures, ground truth."""
+
+    def __init__(self, spec, textures=None, supersample=4, noise=True):
+        self.spec = spec
+        self.textures = textures if textures is not None else load_textures()
+        self.supersample = supersample
+        self.noise = noise
+        self.shell, self.furniture = office_room(self.textures)
+        shape = (spec.rig.height, spec.rig.width)
+        self.sensors = [
+            LeptonSensor(SensorModel(seed=1, ffc_first_s=spec.ffc_at_s[0]), shape),
+            LeptonSensor(SensorModel(seed=2, gain=1.03, offset_counts=60.0,
+                                     drift_counts_per_s=0.8, ffc_first_s=spec.ffc_at_s[1]),
+                         shape)]
+
+    def scene(self, t):
+        """The Scene at time ``t`` and each person's head centre (world, metres)."""
+        objects, heads = list(self.furniture), []
+        for index, script in enumerate(self.spec.people):
+            parts, head = people.body_parts(script.pose(t), script.look,
+                                            PERSON_LABEL_BASE + index, AMBIENT)
+            objects += parts
+            heads.append(head)
+        labels = dict(LABELS)
+        labels.update({PERSON_LABEL_BASE + i: f'person{i}' for i in range(len(self.spec.people))})
+        return Scene(self.shell, objects, labels), np.array(heads).reshape(-1, 3)
+
+    def frame(self, t, with_truth=True):
+        """
+        Render the pair at time ``t``.
+
+        Returns
+        -------
+        dict
+            ``left``, ``right`` (uint16 raw frames), ``temperature`` (2, rows, cols),
+            ``truth`` (GroundTruth or None), ``heads_world`` and ``heads_rectified`` (n, 3).
+
+        """
+        scene, heads = self.scene(t)
+        cameras = self.spec.rig.cameras()
+        temperatures = [render_temperature(scene, camera, self.supersample)
+                        for camera in cameras]
+        frames = [sensor.frame(temperature, t, self.noise)
+                  for sensor, temperature in zip(self.sensors, temperatures)]
+        return {'left': frames[0], 'right': frames[1], 'temperature': np.array(temperatures),
+                'truth': ground_truth(scene, self.spec.rig, self.supersample)
+                if with_truth else None,
+                'heads_world': heads, 'heads_rectified': self.spec.rig.to_rectified_left(heads)}
