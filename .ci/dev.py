@@ -51,6 +51,13 @@ def ensure_environment():
     log('installing the pinned requirements (first run or requirements changed)')
     pip = [str(venv_python()), '-m', 'pip', '--disable-pip-version-check']
     subprocess.run(pip + ['install', '--quiet', PIP], check=True)
+    # Both OpenCV wheels install the same cv2 package: drop the one the pins replaced before
+    # the contrib build goes in (uninstalling it afterwards would delete the shared files).
+    contrib = subprocess.run(pip + ['show', '--quiet', 'opencv-contrib-python-headless'],
+                             capture_output=True).returncode == 0
+    if not contrib:
+        subprocess.run(pip + ['uninstall', '--quiet', '--yes', 'opencv-python-headless',
+                              'opencv-python'], check=False, capture_output=True)
     subprocess.run(pip + ['install', '--quiet', '-r', str(ROOT / 'requirements.txt')],
                    check=True)
     subprocess.run(pip + ['install', '--quiet', '--no-deps', '--no-build-isolation', '-e',

@@ -63,6 +63,7 @@ class DriverNode(Node):
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         value = self._value
         self.source = value('source')
+        self.publish_wall_times = {}
         self.telemetry = value('telemetry')
         self.max_delta = value('max_pair_delta')
         self.duration = value('duration')
@@ -208,7 +209,12 @@ class DriverNode(Node):
             self.info_pubs[index].publish(conversions.camera_info_from_calibration(
                 calibration, header_side))
         self.published += 1
-        self.frequency.tick(time.time())
+        now = time.time()
+        self.frequency.tick(now)
+        # Wall time each stamp went out (bag stamps are not wall time): for latency monitors.
+        self.publish_wall_times[(header.stamp.sec, header.stamp.nanosec)] = now
+        while len(self.publish_wall_times) > 256:
+            self.publish_wall_times.pop(next(iter(self.publish_wall_times)))
 
     # --- services ---------------------------------------------------------------------------
     def _trigger_ffc(self, request, response):

@@ -28,19 +28,26 @@ def build_nodes(args=None):
 
 
 class SuiteMonitor(Node):
-    """Watches ``points2``: frequency, stamp-to-receipt latency, matches, depth."""
+    """Watches ``points2``: frequency, publish-to-receipt latency, matches, points."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, driver=None, **kwargs):
         super().__init__('suite_monitor', **with_default_namespace(kwargs))
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
+        self.driver = driver
         self.times, self.latencies, self.matches, self.depths = [], [], [], []
+        self.clouds = {}          # stamp in ns -> points (n, 3)
 
     def _on_points(self, msg):
         now = time.time()
         self.times.append(now)
-        self.latencies.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        published = self.driver.publish_wall_times.get(key) if self.driver else None
+        if published is None:     # stamps are wall time (live or simulated cameras)
+            published = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self.latencies.append(now - published)
         points = point_cloud_array(msg)
+        self.clouds[key[0] * 1_000_000_000 + key[1]] = points
         self.matches.append(len(points))
         if len(points):
             self.depths.append(float(np.nanmedian(points[:, 2])))
@@ -63,30 +70,63 @@ def main(args=None):
         rclpy.try_shutdown()
 
 
+def default_recording():
+    """The bundled recording (package share, or the source tree for a pip install)."""
+    import pathlib
+
+    from st_stereo.nodes.driver_node import resolve_url
+    return pathlib.Path(resolve_url('package://st_stereo/data/recordings/office/README.md')).parent
+
+
 def run_suite(argv=None):
     """
     Run the main job: the whole suite in one process on a finite stream.
 
-    Prints a status line per second and a summary; exits at the end of the stream or on
-    Ctrl-C.
+    By default the driver replays the bundled recording (a simulated office with two people,
+    with ground truth); ``--sim`` uses the simulated textured plane instead. Prints a status
+    line per second and a summary, compared with the ground truth when there is one; exits at
+    the end of the stream or on Ctrl-C.
     """
     import argparse
     parser = argparse.ArgumentParser(prog='st-stereo-suite', description=run_suite.__doc__)
+    parser.add_argument('--recording', default=None,
+                        help='recording directory (bag/, left.yaml, right.yaml and optionally '
+                             'ground_truth.npz); default: the bundled recording')
+    parser.add_argument('--sim', action='store_true',
+                        help='simulated cameras looking at a textured plane instead')
     parser.add_argument('--seconds', type=float, default=10.0,
-                        help='stream duration (simulated rig), seconds')
-    parser.add_argument('--depth', type=float, default=3.5, help='plane depth, metres')
+                        help='--sim: stream duration, seconds')
+    parser.add_argument('--depth', type=float, default=3.5, help='--sim: plane depth, metres')
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['st-stereo-suite', *ros_args] if ros_args else None)
-    driver_overrides = [Parameter('duration', value=float(args.seconds)),
-                        Parameter('sim_depth', value=float(args.depth))]
+    truth = None
+    if args.sim:
+        driver_overrides = [Parameter('duration', value=float(args.seconds)),
+                            Parameter('sim_depth', value=float(args.depth))]
+        source = f'simulated rig (plane at {args.depth} m), {args.seconds} s of stream'
+    else:
+        import pathlib
+
+        from st_stereo.sim.recording import load_ground_truth
+        recording = pathlib.Path(args.recording) if args.recording else default_recording()
+        if not (recording / 'bag').is_dir():
+            raise SystemExit(f'st-stereo-suite: {recording}: not a recording directory (no '
+                             f'bag/ in it)')
+        driver_overrides = [Parameter('source', value='bag'),
+                            Parameter('bag', value=str(recording / 'bag'))] + [
+            Parameter(f'{side}_camera_info_url', value=f'file://{recording / side}.yaml')
+            for side in ('left', 'right') if (recording / f'{side}.yaml').is_file()]
+        if (recording / 'ground_truth.npz').is_file():
+            truth = load_ground_truth(recording)
+        source = f'recording {recording}'
     driver = DriverNode(parameter_overrides=driver_overrides)
-    nodes = [driver, RectifierNode(), MatcherNode(), SuiteMonitor()]
+    matcher = MatcherNode()
+    nodes = [driver, RectifierNode(), matcher, SuiteMonitor(driver)]
     monitor = nodes[-1]
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
-    print(f'st_stereo suite: simulated rig (plane at {args.depth} m), {args.seconds} s of '
-          f'stream: lepton_driver -> rectifier -> matcher', flush=True)
+    print(f'st_stereo suite: {source}: lepton_driver -> rectifier -> matcher', flush=True)
     started = time.monotonic()
     next_report = started + 1.0
     try:
@@ -99,7 +139,7 @@ def run_suite(argv=None):
                 latency = np.median(monitor.latencies[-len(recent):]) * 1e3 if recent else 0
                 matches = monitor.matches[-1] if monitor.matches else 0
                 print(f't={now - started:5.1f}s  {len(recent):2d} fps  latency '
-                      f'{latency:6.1f} ms  matches {matches:4d}  points {matches:4d}  pairs '
+                      f'{latency:6.1f} ms  matches {matches:4d}  pairs '
                       f'{driver.published:4d}', flush=True)
             if driver.finished.is_set() and now - started > 1.0:
                 # Let the last pair go through the pipeline.
@@ -110,11 +150,41 @@ def run_suite(argv=None):
     except KeyboardInterrupt:
         print('interrupted', flush=True)
     finally:
-        print_summary(driver, nodes[2], monitor, args.depth)
+        print_summary(driver, matcher, monitor, args.depth if args.sim else None)
+        if truth is not None:
+            print_truth_comparison(monitor, truth, matcher)
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0 if monitor.times and not driver.last_error else 1
+
+
+def print_truth_comparison(monitor, truth, matcher):
+    """Compare the received point clouds with a recording's ground-truth depth maps."""
+    from st_stereo.tools.eval_pipeline import cloud_errors
+    model = matcher.matcher.model
+    if model is None:
+        return
+    index = {int(stamp): i for i, stamp in enumerate(truth['stamp_ns'])}
+    errors, person, outliers, compared = [], [], 0, 0
+    for stamp, points in monitor.clouds.items():
+        if stamp not in index or not len(points):
+            continue
+        frame = index[stamp]
+        result = cloud_errors(points, model, truth['depth'][frame], truth['labels'][frame],
+                              truth['visible_right'][frame])
+        errors.append(result['relative_error'])
+        person.append(result['relative_error'][result['person']])
+        outliers += result['outliers']
+        compared += result['compared']
+    if not compared:
+        print('  ground truth: no cloud matched a ground-truth stamp')
+        return
+    errors, person = np.concatenate(errors), np.concatenate(person)
+    print(f'  ground truth ({len(monitor.clouds)} clouds): median |Z - Z_true| / Z_true '
+          f'{np.median(errors) * 100:.2f} % (people: '
+          f'{np.median(person) * 100 if len(person) else float("nan"):.2f} %), outliers '
+          f'(|dZ| > 0.3 m) {outliers / compared * 100:.1f} % of {compared} points')
 
 
 def print_summary(driver, matcher, monitor, depth):
@@ -133,7 +203,7 @@ def print_summary(driver, matcher, monitor, depth):
               f'{np.percentile(latencies, 99):.1f} ms')
     if monitor.matches:
         print(f'  matches per pair: median {np.median(monitor.matches):.0f}')
-    if monitor.depths:
+    if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
     for index, reader in enumerate(driver.readers):
         counters = reader.counters

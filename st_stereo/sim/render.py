@@ -88,16 +88,24 @@ def ground_truth(scene, rig, supersample=4):
         raw_depth_left=raw[0], raw_depth_right=raw[1])
 
 
-def disparity_error(truth, x_left, y, disparity):
+def disparity_error(truth, x_left, y, disparity, neighbourhood=0):
     """
     Distance of matched disparities to the ground truth's per-pixel range, pixels.
 
     Zero when the estimate lies within the range the pixel's area holds (depth edges), the
     distance to that range otherwise; NaN where the point is hidden from the right camera.
+    ``neighbourhood`` = r widens the range to the pixels within r (a feature located up to r
+    pixels off a depth edge may carry the other side's disparity).
     """
     rows = np.clip(np.rint(y).astype(int), 0, truth.disparity.shape[0] - 1)
     cols = np.clip(np.rint(x_left).astype(int), 0, truth.disparity.shape[1] - 1)
-    low = truth.disparity_min[rows, cols]
-    high = truth.disparity_max[rows, cols]
+    low_map, high_map = truth.disparity_min, truth.disparity_max
+    if neighbourhood:
+        from scipy import ndimage
+        size = 2 * neighbourhood + 1
+        low_map = ndimage.minimum_filter(low_map, size, mode='nearest')
+        high_map = ndimage.maximum_filter(high_map, size, mode='nearest')
+    low = low_map[rows, cols]
+    high = high_map[rows, cols]
     error = np.maximum(np.maximum(low - disparity, disparity - high), 0.0)
     return np.where(truth.visible_right[rows, cols], error, np.nan)
