@@ -217,6 +217,54 @@ def command_eval(args):
     return 0
 
 
+def _progress(quiet):
+    """Return a tqdm progress-bar factory ``(total, name) -> bar`` (disabled when quiet)."""
+    from tqdm import tqdm
+    return lambda total, name='': tqdm(total=total, desc=name, unit='step', disable=quiet,
+                                       leave=False)
+
+
+def command_eval_features(args):
+    """Paper Table 1 / Fig. 5: features and time per image, every detector."""
+    from st_stereo.tools import eval_features as ef
+    from st_stereo.tools.data import FRAMES, shared_frame
+    paths = args.image or [str(shared_frame(name)) for name in FRAMES]
+    images = ef.frames_80x60(paths)
+    rows, missing = ef.feature_table(images, repeats=args.repeats)
+    print(ef.feature_markdown(rows, missing, [p.split('/')[-1] for p in paths]))
+    if args.figure:
+        ef.overlay_figure(images[0], args.figure)
+    if args.illumination:
+        curves = ef.illumination_curves(images)
+        print(ef.illumination_markdown(curves))
+        ef.plot_illumination(curves, args.illumination)
+    return 0
+
+
+def command_eval_pipeline(args):
+    """Paper Table 2: ST vs ORB + KNN vs StereoSGBM in 3-D on simulated sequences."""
+    from st_stereo.tools import eval_pipeline as ep
+    config = config_from_assignments(args.set)
+    report, tallies = ep.evaluate(sequences=args.sequences.split(','), config=config,
+                                  stride=args.stride, progress_factory=_progress(args.quiet),
+                                  max_frames=args.max_frames)
+    print(ep.markdown_tables(report))
+    if args.plot:
+        ep.plot_boxes(tallies, args.plot)
+    if args.json:
+        ep.write_json(report, args.json)
+    failed = [row for row in ep.checks(report) if not row[4]]
+    return 0 if not failed or not args.strict else 1
+
+
+def command_eval_all(args):
+    """Every evaluation; writes the Markdown report, figures and JSON."""
+    from st_stereo.tools.results import run_all
+    run_all(args.out, quick=args.quick, progress_factory=_progress(args.quiet))
+    print(f'wrote {args.out}')
+    return 0
+
+
 def command_bench(args):
     """Time every stage of ST against StereoSGBM and ORB + KNN; print one table."""
     from st_stereo.tools import bench
@@ -279,6 +327,33 @@ def build_parser():
     e.add_argument('--markdown', help='write the tables as Markdown')
     e.add_argument('--quiet', action='store_true', help='no progress bar')
     e.set_defaults(handler=command_eval)
+    e = eval_sub.add_parser('features', help='paper Table 1 / Fig. 5 (and Figs. 6-7): '
+                            'feature detectors at 80x60')
+    e.add_argument('--image', action='append', help='frame (repeatable; default: every '
+                   'shared frame)')
+    e.add_argument('--repeats', type=int, default=100, help='timed runs per image')
+    e.add_argument('--figure', help='write the overlay figure (PNG) of the first image')
+    e.add_argument('--illumination', metavar='PNG',
+                   help='also run the brightness-change study, plot to PNG')
+    e.set_defaults(handler=command_eval_features)
+    e = eval_sub.add_parser('pipeline', help='paper Table 2: 3-D against ground truth, ST vs '
+                            'ORB + KNN vs StereoSGBM on simulated sequences')
+    e.add_argument('--sequences', default='walk_across,two_people,sit_down')
+    e.add_argument('--stride', type=int, default=2, help='score every N-th frame')
+    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
+    e.add_argument('--plot', help='box plots of the depth errors (PNG)')
+    e.add_argument('--json', help='write the table as JSON')
+    e.add_argument('--strict', action='store_true',
+                   help="exit 1 when one of the issue's criteria is not met")
+    e.add_argument('--quiet', action='store_true')
+    _add_config_option(e)
+    e.set_defaults(handler=command_eval_pipeline)
+    e = eval_sub.add_parser('all', help='every evaluation: the paper-reproduction report')
+    e.add_argument('--out', default='docs/results.md', help='Markdown report path (figures '
+                   'and JSON go to results/ beside it)')
+    e.add_argument('--quick', action='store_true', help='fewer repeats, shifts and frames')
+    e.add_argument('--quiet', action='store_true')
+    e.set_defaults(handler=command_eval_all)
 
     p = sub.add_parser('bench', help='speed of ST vs StereoSGBM and ORB + KNN')
     p.add_argument('--pairs', type=int, default=200, help='timed pairs per size')

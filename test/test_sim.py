@@ -25,14 +25,14 @@ def textures():
 
 
 def plane_scene(textures, depth):
-    """A room whose far wall is a textured plane ``depth`` metres in front of a level rig."""
+    """Build a room whose far wall is a textured plane ``depth`` metres in front of a level rig."""
     wall = ThermalMaterial(base=25.0, texture=textures['panel'],
                            texture_axes=((1.0, 0.0, 0.0), (0.0, 0.0, -1.0)), texel_m=0.03,
                            texture_kelvin=3.0)
     flat = ThermalMaterial(base=21.0)
-    materials = {face: flat for face in FACES}
+    materials = dict.fromkeys(FACES, flat)
     materials['y+'] = wall
-    labels = {face: 1 for face in FACES}
+    labels = dict.fromkeys(FACES, 1)
     labels['y+'] = 2
     return Scene(RoomShell((-6.0, -1.0, -3.0), (6.0, depth, 6.0), materials, labels), [], {})
 
@@ -182,3 +182,16 @@ def test_disparity_error_is_zero_inside_the_pixel_range_and_nan_when_hidden():
     assert error[0] == 0.0
     assert error[1] == pytest.approx(0.5, abs=1e-9)
     assert math.isnan(error[2])
+
+
+def test_sim_commands_list_render_and_refuse_unknown_sequences(tmp_path, capsys):
+    from st_stereo.cli import main
+    assert main(['sim', 'list']) == 0
+    assert 'walk_across' in capsys.readouterr().out
+    assert main(['sim', 'render', '--sequence', 'sit_down', '--time', '5',
+                 '--out', str(tmp_path / 'frame')]) == 0
+    data = np.load(tmp_path / 'frame.npz')
+    assert data['left'].shape == (60, 80) and data['left'].dtype == np.uint16
+    assert (tmp_path / 'frame.png').stat().st_size > 1000
+    assert main(['sim', 'record', '--sequence', 'nope', '--out', str(tmp_path / 'x')]) == 2
+    assert "unknown sequence 'nope'" in capsys.readouterr().err

@@ -174,7 +174,7 @@ class DriverNode(Node):
                     # Pace the simulated cameras at real time: a frame is released when the
                     # wall clock reaches the simulated moment its last packet was read.
                     lag = reader.transport.now() - (time.monotonic() - wall_start)
-                    if lag > 0:
+                    if 0 < lag < float('inf'):       # inf: that side's recording has ended
                         time.sleep(lag)
                 if frame is None:
                     continue

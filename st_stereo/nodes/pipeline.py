@@ -47,7 +47,7 @@ class SuiteMonitor(Node):
             published = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self.latencies.append(now - published)
         points = point_cloud_array(msg)
-        self.clouds[key[0] * 1_000_000_000 + key[1]] = points
+        self.clouds[key[0] * 1_000_000_000 + key[1]] = points[:, :3]
         self.matches.append(len(points))
         if len(points):
             self.depths.append(float(np.nanmedian(points[:, 2])))
@@ -71,7 +71,7 @@ def main(args=None):
 
 
 def default_recording():
-    """The bundled recording (package share, or the source tree for a pip install)."""
+    """Return the bundled recording (package share, or the source tree for a pip install)."""
     import pathlib
 
     from st_stereo.nodes.driver_node import resolve_url
@@ -160,31 +160,32 @@ def run_suite(argv=None):
 
 
 def print_truth_comparison(monitor, truth, matcher):
-    """Compare the received point clouds with a recording's ground-truth depth maps."""
-    from st_stereo.tools.eval_pipeline import cloud_errors
+    """Compare the received point clouds with a recording's ground truth, as eval pipeline."""
+    from st_stereo.sim.recording import frame_truth
+    from st_stereo.tools.eval_pipeline import MethodTally, points_to_matches
     model = matcher.matcher.model
     if model is None:
         return
-    index = {int(stamp): i for i, stamp in enumerate(truth['stamp_ns'])}
-    errors, person, outliers, compared = [], [], 0, 0
+    stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
+    tally = MethodTally()
     for stamp, points in monitor.clouds.items():
-        if stamp not in index or not len(points):
+        # Replayed stamps go through float seconds: match within a microsecond.
+        index = int(np.argmin(np.abs(stamps - stamp)))
+        if abs(int(stamps[index]) - stamp) > 1000:
             continue
-        frame = index[stamp]
-        result = cloud_errors(points, model, truth['depth'][frame], truth['labels'][frame],
-                              truth['visible_right'][frame])
-        errors.append(result['relative_error'])
-        person.append(result['relative_error'][result['person']])
-        outliers += result['outliers']
-        compared += result['compared']
-    if not compared:
-        print('  ground truth: no cloud matched a ground-truth stamp')
+        xy, disparity = points_to_matches(points, model)
+        tally.add(model, frame_truth(truth, index), xy, disparity, 0.0)
+    if not tally.frames:
+        print('  ground truth: no point cloud matched a ground-truth stamp')
         return
-    errors, person = np.concatenate(errors), np.concatenate(person)
-    print(f'  ground truth ({len(monitor.clouds)} clouds): median |Z - Z_true| / Z_true '
-          f'{np.median(errors) * 100:.2f} % (people: '
-          f'{np.median(person) * 100 if len(person) else float("nan"):.2f} %), outliers '
-          f'(|dZ| > 0.3 m) {outliers / compared * 100:.1f} % of {compared} points')
+    row = tally.summary()
+    print(f'  ground truth, {tally.frames} clouds: {row["correct_per_frame"]:.0f} correct '
+          f'points per cloud (|dZ| <= 0.3 m); at 2.5-4.5 m median |dZ| / Z '
+          f'{row["relative_error_median_in_range"] * 100:.2f} %, outliers '
+          f'{row["outlier_rate_in_range"] * 100:.1f} % (+-1 px: '
+          f'{row["outlier_rate_in_range_1px"] * 100:.1f} %); people: Z '
+          f'{row["person_z_mean_m"]:.3f} +- {row["person_z_std_m"]:.3f} m (true '
+          f'{row["person_z_true_mean_m"]:.3f} m)')
 
 
 def print_summary(driver, matcher, monitor, depth):

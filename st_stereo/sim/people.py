@@ -66,6 +66,7 @@ def body_parts(pose, look, label, ambient=21.0):
     swing = pose.gait_amplitude_rad * math.sin(pose.gait_phase)
     hip_z = (1 - s) * 0.53 * h + s * 0.50
     thigh, shin = 0.245 * h, 0.25 * h
+
     def mat(base, kelvin, wavelength, seed_offset, grazing=0.35):
         return ThermalMaterial(base=base, noise_kelvin=kelvin, noise_wavelength_m=wavelength,
                                grazing=grazing, ambient=ambient, seed=look.seed * 31 + seed_offset)

@@ -78,8 +78,9 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
     # What the driver will load: round-trip through the YAML, as a user's files would.
     calibrations = [load_calibration(out_dir / f'{side}.yaml') for side in ('left', 'right')]
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    truth_frames = {key: [] for key in ('stamp_ns', 'depth', 'disparity', 'labels',
-                                        'visible_right', 'heads_world', 'heads_rectified')}
+    truth_frames = {key: [] for key in ('stamp_ns', 'depth', 'disparity', 'disparity_min',
+                                        'disparity_max', 'labels', 'visible_right',
+                                        'heads_world', 'heads_rectified')}
     namespace = namespace.rstrip('/')
     with Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {}
@@ -101,7 +102,8 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
             truth = frame['truth']
             truth_frames['stamp_ns'].append(stamp_ns)
             truth_frames['depth'].append(truth.depth.astype(np.float32))
-            truth_frames['disparity'].append(truth.disparity.astype(np.float32))
+            for key in ('disparity', 'disparity_min', 'disparity_max'):
+                truth_frames[key].append(getattr(truth, key).astype(np.float32))
             truth_frames['labels'].append(truth.labels.astype(np.uint8))
             truth_frames['visible_right'].append(truth.visible_right)
             truth_frames['heads_world'].append(frame['heads_world'])
@@ -118,7 +120,7 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
 
 
 def recording_readme(spec, namespace):
-    """The README of a recording directory."""
+    """Return the README text of a recording directory."""
     rig = spec.rig
     return (
         f'# Simulated recording: {spec.name}\n\n'
@@ -133,9 +135,21 @@ def recording_readme(spec, namespace):
         f'{rig.misalignment_deg} deg (roll, pitch, yaw), baseline {rig.baseline_m:.4f} m, '
         f'fx B = {rig.fx_baseline:.3f} px m.\n'
         f'- `ground_truth.npz`: per frame `stamp_ns`, `depth` (Z in the rectified left camera, '
-        f'm), `disparity` (fx B / Z, px), `labels` (see `label_names`), `visible_right`, '
-        f'`heads_world` and `heads_rectified` (each person\'s head centre, m).\n\n'
+        'm), `disparity` (fx B / Z, px) with its range over each pixel area '
+        '(`disparity_min`, `disparity_max`), `labels` (see `label_names`), `visible_right`, '
+        '`heads_world` and `heads_rectified` (the head centre of each person, m).\n\n'
         f'{TEXTURE_CREDITS}\n')
+
+
+def frame_truth(truth, index):
+    """Return the GroundTruth of frame ``index`` of a loaded ground_truth.npz (no raw depths)."""
+    from st_stereo.sim.render import GroundTruth
+    return GroundTruth(depth=truth['depth'][index], disparity=truth['disparity'][index],
+                       disparity_min=truth['disparity_min'][index],
+                       disparity_max=truth['disparity_max'][index],
+                       labels=truth['labels'][index].astype(np.int32),
+                       visible_right=truth['visible_right'][index], raw_depth_left=None,
+                       raw_depth_right=None)
 
 
 def load_ground_truth(path):

@@ -83,7 +83,8 @@ def ground_truth(scene, rig, supersample=4):
     shape = (height, width)
     return GroundTruth(
         depth=depth.reshape(shape), disparity=(fxb / depth).reshape(shape),
-        disparity_min=sub_disparity.min(axis=2), disparity_max=sub_disparity.max(axis=2),
+        disparity_min=np.minimum(sub_disparity.min(axis=2), (fxb / depth).reshape(shape)),
+        disparity_max=np.maximum(sub_disparity.max(axis=2), (fxb / depth).reshape(shape)),
         labels=hits.label.reshape(shape), visible_right=visible.reshape(shape),
         raw_depth_left=raw[0], raw_depth_right=raw[1])
 

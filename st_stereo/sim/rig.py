@@ -62,7 +62,7 @@ def undistort_normalised(distorted, distortion, iterations=100, tolerance=1e-13)
 
 
 def focal_length_of_hfov(width, hfov_deg):
-    """Pinhole focal length in pixels of a horizontal field of view: ``(w / 2) / tan(hfov / 2)``."""
+    """Return the pinhole focal length (px) of a field of view: ``(w / 2) / tan(hfov / 2)``."""
     return (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
 
 
@@ -104,7 +104,7 @@ class PinholeCamera:
 
     def pixel_rays(self, pixels):
         """
-        World ray directions (n, 3) through raw pixel coordinates (n, 2), undistorted.
+        Return world ray directions (n, 3) through raw pixel coordinates (n, 2), undistorted.
 
         The inverse of the distortion model is solved iteratively (``undistort_normalised``).
         """
@@ -141,7 +141,7 @@ class RigGeometry:
 
     @property
     def focal_length(self):
-        """fx = fy of the left camera, pixels."""
+        """Return fx = fy of the left camera, pixels."""
         return focal_length_of_hfov(self.width, self.hfov_deg)
 
     def nominal_camera_matrix(self, focal_scale=1.0):
@@ -159,7 +159,7 @@ class RigGeometry:
         return np.vstack([x_axis, y_axis, z_axis])
 
     def cameras(self):
-        """The left and right PinholeCamera."""
+        """Return the left and right PinholeCamera."""
         rotation = self.base_rotation()
         distortion = np.array([self.distortion[0], self.distortion[1], 0.0, 0.0, 0.0])
         half = self.baseline_m / 2.0
@@ -172,7 +172,7 @@ class RigGeometry:
         return left, right
 
     def stereo_extrinsics(self):
-        """OpenCV R, T: a point in the left camera frame maps to ``R p + T`` in the right."""
+        """Return OpenCV's R, T: a left-camera point p is ``R p + T`` in the right camera."""
         left, right = self.cameras()
         r = right.rotation @ left.rotation.T
         t = right.rotation @ (left.centre - right.centre)
@@ -198,7 +198,7 @@ class RigGeometry:
         return r1, r2, p1, p2
 
     def calibrations(self):
-        """The true left and right CameraCalibration (camera_calibration YAML content)."""
+        """Return the true left and right CameraCalibration (camera_calibration YAML content)."""
         left, right = self.cameras()
         r1, r2, p1, p2 = self.rectification()
         return tuple(CameraCalibration(
@@ -226,11 +226,11 @@ class RigGeometry:
 
     @property
     def fx_baseline(self):
-        """fx B of the rectified pair, pixel metres: ``d = fx B / Z``."""
+        """Return fx B of the rectified pair, pixel metres: ``d = fx B / Z``."""
         return self.focal_length * self.baseline_m
 
 
 def realistic_rig():
-    """The default recording's rig: barrel distortion and a slightly misaligned right camera."""
+    """Return the recordings' rig: barrel distortion, a slightly misaligned right camera."""
     return RigGeometry(distortion=(-0.12, 0.03), misalignment_deg=(0.4, -0.3, 0.6),
                        right_focal_scale=1.006)

@@ -52,7 +52,7 @@ class SensorModel:
     seed: int = 0
 
     def ffc_index(self, time_s):
-        """Number of flat-field corrections done by ``time_s`` (the first at ``ffc_first_s``)."""
+        """Count the flat-field corrections done by ``time_s`` (the first at ``ffc_first_s``)."""
         if self.ffc_period_s <= 0 or time_s < self.ffc_first_s:
             return 0
         return 1 + int((time_s - self.ffc_first_s) // self.ffc_period_s)
@@ -102,7 +102,7 @@ class LeptonSensor:
         return m.reference_counts + m.gain * self.vignette * signal
 
     def frame(self, celsius, time_s, noise=True):
-        """One uint16 frame (14-bit counts) of a temperature image at ``time_s``."""
+        """Return the 14-bit counts (uint16) of a temperature image at ``time_s``."""
         m = self.model
         counts = self.signal_counts(celsius) + m.offset_counts
         if noise:

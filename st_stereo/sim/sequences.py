@@ -44,10 +44,11 @@ def load_textures(blur_texels=1.0):
 
 
 def office_room(textures, chair=(-0.6, 3.3)):
-    """The static office: shell faces and furniture (labels in ``LABELS``)."""
+    """Build the static office: shell faces and furniture (labels in ``LABELS``)."""
     floor = ThermalMaterial(base=AMBIENT - 0.5, gradient=(0.0, 0.15, 0.0),
                             texture=textures['floor'], texel_m=0.04, texture_kelvin=0.6,
                             ambient=AMBIENT, seed=11)
+
     def wall(axes, seed):
         return ThermalMaterial(base=AMBIENT, gradient=(0.0, 0.0, 0.4),
                                texture=textures['wall'], texture_axes=axes, texel_m=0.03,
@@ -105,7 +106,7 @@ class PersonScript:
     heading_rad: float = 0.0
 
     def pose(self, t):
-        """The person's PersonPose at time ``t``: heading from motion, gait from distance."""
+        """Return the PersonPose at time ``t``: heading from motion, gait from distance."""
         frames = self.keyframes
         times = np.array([k.t for k in frames])
         xs, ys = np.array([k.x for k in frames]), np.array([k.y for k in frames])
@@ -163,7 +164,7 @@ def _walker(path, look, start=0.0, speed=1.0, pause=0.0):
 
 
 def standard_sequences():
-    """The evaluation sequences (people at 2.5-4.5 m from the rig) and the default recording."""
+    """Return the evaluation sequences (people 2.5-4.5 m from the rig) and the recording's."""
     tall = people.PersonLook(height_m=1.80, seed=1)
     short = people.PersonLook(height_m=1.65, skin=34.0, top=30.0, trousers=27.5, seed=2)
     sitter = PersonScript((Keyframe(0.0, -1.4, 4.6), Keyframe(3.0, -0.6, 3.4),
@@ -209,7 +210,7 @@ class SequenceRenderer:
                          shape)]
 
     def scene(self, t):
-        """The Scene at time ``t`` and each person's head centre (world, metres)."""
+        """Return the Scene at time ``t`` and each person's head centre (world, metres)."""
         objects, heads = list(self.furniture), []
         for index, script in enumerate(self.spec.people):
             parts, head = people.body_parts(script.pose(t), script.look,

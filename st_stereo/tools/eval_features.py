@@ -1,6 +1,5 @@
 """
-Feature detectors at 80x60 (paper Table 1, Fig. 5) and their robustness to brightness changes
-(paper Figs. 6-7).
+Feature detectors at 80x60 (paper Table 1, Fig. 5), robustness to brightness (Figs. 6-7).
 
 Phase congruency (the ST features: ``M > gamma``, paper section 2.2) at gamma = 0.3, 0.1 and 0.01
 against OpenCV's ORB, BRISK, FAST, GFTT / Shi-Tomasi, AGAST, KAZE and SIFT. SURF is patented and
@@ -54,7 +53,7 @@ def _factory(name):
 
 
 def opencv_detector(name):
-    """An OpenCV detector, or a RuntimeError saying why it is unavailable (SURF: non-free)."""
+    """Return an OpenCV detector; a RuntimeError says why one is unavailable (SURF: non-free)."""
     try:
         detector = _factory(name)()
         detector.detect(np.zeros((8, 8), np.uint8))
@@ -150,8 +149,8 @@ def illumination_curves(images, betas=BETAS, methods=None, progress=None):
     Returns ``{method: {'count': [...], 'redetection': [...]}}`` over ``betas``.
     """
     all_methods, detectors, _ = methods_and_detectors()
-    methods = methods or ['PhaseCong(0.1)'] + [m for m in all_methods
-                                                if not m.startswith('PhaseCong')]
+    methods = methods or ['PhaseCong(0.1)'] + [
+        m for m in all_methods if not m.startswith('PhaseCong')]
     curves = {}
     for method in methods:
         counts = np.zeros((len(images), len(betas)))

@@ -38,29 +38,17 @@ METHODS = ('ST', 'ORB + KNN', 'StereoSGBM')
 EVALUATED_SEQUENCES = ('walk_across', 'two_people', 'sit_down')
 
 
-def cloud_errors(points, model, depth_truth, labels, visible):
-    """
-    Errors of a point cloud (n, 3) against a depth map at the pixels the points project to.
-
-    Returns a dict: ``relative_error`` |Z - Z_true| / Z_true of the visible points, ``person``
-    (mask over those), ``outliers`` (|dZ| > 0.3 m), ``compared`` (visible points).
-    """
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+def points_to_matches(points, model):
+    """Left pixel positions (n, 2) and disparities (n,) of triangulated points (n, >= 3)."""
+    points = np.asarray(points, dtype=np.float64)[:, :3]
     z = points[:, 2]
-    cols = np.rint(model.fx * points[:, 0] / z + model.cx).astype(int)
-    rows = np.rint(model.fy * points[:, 1] / z + model.cy).astype(int)
-    inside = (rows >= 0) & (rows < depth_truth.shape[0]) & (cols >= 0) & \
-        (cols < depth_truth.shape[1])
-    rows, cols, z = rows[inside], cols[inside], z[inside]
-    seen = visible[rows, cols]
-    truth = depth_truth[rows, cols][seen]
-    error = np.abs(z[seen] - truth)
-    return {'relative_error': error / truth, 'person': labels[rows, cols][seen] >= 100,
-            'outliers': int((error > OUTLIER_M).sum()), 'compared': int(seen.sum())}
+    xy = np.column_stack([model.fx * points[:, 0] / z + model.cx,
+                          model.fy * points[:, 1] / z + model.cy])
+    return xy, model.disparity_of_depth(z)
 
 
 def orb_knn_matches(left_u8, right_u8):
-    """The paper's baseline: ORB + BFMatcher KNN (k = 2) with the 0.75 ratio test."""
+    """Match with the paper's baseline: ORB + BFMatcher KNN (k = 2) with the 0.75 ratio test."""
     import cv2
     orb = cv2.ORB_create(nfeatures=500, edgeThreshold=5, patchSize=9)
     left_points, left_desc = orb.detectAndCompute(left_u8, None)
@@ -133,12 +121,12 @@ class MethodTally:
             self.columns[key].append(np.maximum(np.maximum(z_near - z, z - z_far), 0.0))
 
     def arrays(self):
-        """The per-match columns as arrays."""
+        """Return the per-match columns as arrays."""
         return {key: np.concatenate(value) if value else np.zeros(0)
                 for key, value in self.columns.items()}
 
     def summary(self):
-        """The row of the 3-D table: over all visible matches and over those at 2.5-4.5 m."""
+        """Return the row of the 3-D table: all visible matches and those at 2.5-4.5 m."""
         a = self.arrays()
         frames = max(self.frames, 1)
         in_range = (a['z_true'] >= RANGE_M[0]) & (a['z_true'] <= RANGE_M[1])
@@ -181,7 +169,7 @@ def evaluate_sequence(spec, config=None, stride=1, textures=None, progress=None,
     if max_frames:
         times = times[:max_frames]
     for t in times:
-        # Render every frame in order (the sensor noise stream), score the strided ones.
+        # The sensor noise stream is seeded: the same frames get the same noise every run.
         frame = renderer.frame(t)
         left, right = rectifier.rectify(frame['left'], frame['right'])
         truth = frame['truth']
@@ -222,7 +210,7 @@ def evaluate(sequences=EVALUATED_SEQUENCES, config=None, stride=2, progress_fact
 
 
 def checks(report):
-    """The issue's criteria per sequence: (sequence, criterion, value, target, met)."""
+    """Return the issue's criteria per sequence: (sequence, criterion, value, target, met)."""
     rows = []
     for name, methods in report.items():
         st, orb = methods['ST'], methods['ORB + KNN']
@@ -238,7 +226,7 @@ def checks(report):
 
 
 def markdown_tables(report):
-    """The 3-D table (one block per sequence) and the criteria, as Markdown."""
+    """Return the 3-D table (one block per sequence) and the criteria, as Markdown."""
     lines = ['| sequence | method | matches / frame | correct / frame | occluded / frame | '
              'Z on people (m) | true Z on people (m) | median abs dZ (m) | p90 abs dZ (m) | '
              'outliers | at 2.5-4.5 m: matches / frame | median abs dZ / Z | outliers | '

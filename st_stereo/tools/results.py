@@ -1,0 +1,229 @@
+"""
+The paper-reproduction report: every table and figure of the paper, with our code, in one file.
+
+``st-stereo eval all --out docs/results.md`` runs the four evaluations (features, illumination,
+sub-pixel accuracy, whole pipeline in 3-D) on the shared real frames and on simulated frames and
+sequences, and writes the Markdown report, its PNG figures (``docs/results/``) and the raw
+numbers (``docs/results/results.json``).
+"""
+
+import json
+import pathlib
+import platform
+import tempfile
+import time
+
+import cv2
+
+SIM_FRAME_TIMES = (2.0, 6.0, 10.0)
+
+
+def simulated_frames(times=SIM_FRAME_TIMES):
+    """Raw left frames of the office sequence at ``times`` (uint16, 80x60)."""
+    from st_stereo.sim.sequences import SequenceRenderer, standard_sequences
+    renderer = SequenceRenderer(standard_sequences()['office'])
+    frames = []
+    for t in renderer.spec.frame_times:
+        if any(abs(t - wanted) < 0.5 / renderer.spec.fps for wanted in times):
+            frames.append(renderer.frame(t, with_truth=False)['left'])
+        elif len(frames) == len(times):
+            break
+        else:
+            renderer.frame(t, with_truth=False)     # keep the noise stream in order
+    return frames
+
+
+def run_all(out_path, quick=False, progress_factory=None, log=print):
+    """Run every evaluation and write the report; returns the results dict."""
+    from st_stereo.tools import eval_features as ef
+    from st_stereo.tools import eval_pipeline as ep
+    from st_stereo.tools import eval_subpixel as es
+    from st_stereo.tools.data import FRAMES, shared_frame
+
+    out_path = pathlib.Path(out_path)
+    figures = out_path.parent / 'results'
+    figures.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    results = {'quick': quick}
+
+    def bar(total, name):
+        return progress_factory(total, name) if progress_factory else None
+
+    real_names = list(FRAMES)
+    real = ef.frames_80x60([shared_frame(name) for name in real_names])
+    log('rendering simulated frames')
+    simulated = simulated_frames()
+    sim_names = [f'sim office t={t:g} s' for t in SIM_FRAME_TIMES]
+
+    # 1. Features (Table 1, Fig. 5).
+    repeats = 10 if quick else 100
+    tables = {}
+    for label, images, names in (('real', real, real_names), ('simulated', simulated,
+                                                              sim_names)):
+        progress = bar(11, f'features ({label})')
+        rows, missing = ef.feature_table(images, repeats=repeats,
+                                         progress=progress.update if progress else None)
+        if progress:
+            progress.close()
+        tables[label] = {'rows': rows, 'missing': missing, 'images': names}
+    results['features'] = tables
+    ef.overlay_figure(real[0], figures / 'features_people_lab.png')
+    ef.overlay_figure(simulated[1], figures / 'features_sim_office.png')
+
+    # 2. Illumination (Figs. 6-7).
+    progress = bar(9, 'illumination')
+    curves = ef.illumination_curves(real + simulated,
+                                    progress=progress.update if progress else None)
+    if progress:
+        progress.close()
+    results['illumination'] = curves
+    ef.plot_illumination(curves, figures / 'illumination.png')
+
+    # 3. Sub-pixel accuracy (Figs. 8-10): ST on every shared frame and the simulated frames.
+    shifts = es.parse_shifts('0:30:1.0' if quick else '0:30:0.25')
+    subpixel = {}
+    with tempfile.TemporaryDirectory() as scratch:
+        paths = [str(shared_frame(name)) for name in real_names]
+        for name, frame in zip(sim_names, simulated):
+            path = pathlib.Path(scratch) / (name.replace(' ', '_').replace('=', '') + '.png')
+            cv2.imwrite(str(path), frame)
+            paths.append(str(path))
+        for name, path in zip(real_names + sim_names, paths):
+            protocol = es.SubpixelProtocol(image_path=path, windows=(9,), gammas=(0.1,),
+                                           shifts=shifts, realistic=True, peers=False)
+            report = es.evaluate(protocol, progress_factory=lambda total, n=name: bar(total, n))
+            report['image'] = name
+            subpixel[name] = report
+    results['subpixel'] = subpixel
+
+    # 4. Whole pipeline in 3-D (Table 2, Figs. 11-12).
+    report, tallies = ep.evaluate(stride=8 if quick else 2, progress_factory=bar,
+                                  max_frames=4 if quick else None)
+    results['pipeline'] = report
+    ep.plot_boxes(tallies, figures / 'pipeline_z_error.png')
+
+    results['seconds'] = time.time() - started
+    with open(figures / 'results.json', 'w', encoding='utf-8') as stream:
+        json.dump(results, stream, indent=1, default=float)
+    out_path.write_text(render_markdown(results, figures.name), encoding='utf-8')
+    return results
+
+
+def _subpixel_rows(subpixel):
+    from st_stereo.tools.eval_subpixel import markdown_table
+    blocks = []
+    for name, report in subpixel.items():
+        blocks.append(f'**{name}**\n\n{markdown_table(report)}')
+    return '\n'.join(blocks)
+
+
+def illumination_summary(curves):
+    """One sentence, computed from the curves, on how phase congruency compares."""
+    pc = curves['PhaseCong(0.1)']
+    others = {m: c for m, c in curves.items() if m != 'PhaseCong(0.1)'}
+    most = all(pc['count'][i] >= max(c['count'][i] for c in others.values())
+               for i in range(len(pc['count'])))
+    best = [i for i in range(len(pc['redetection']))
+            if pc['redetection'][i] >= max(c['redetection'][i] for c in others.values())]
+    rate = pc['redetection'][-1] * 100
+    runner = max(others, key=lambda m: others[m]['redetection'][-1])
+    verdict = 'keeps' if most else 'does not keep'
+    return (f'PhaseCong(0.1) {verdict} the most features at every beta; its re-detection rate '
+            f'is the highest (or tied) at {len(best)} of {len(pc["redetection"])} beta values, '
+            f'and at beta = 100 it is {rate:.0f} % against '
+            f'{others[runner]["redetection"][-1] * 100:.0f} % for '
+            f'the best other detector ({runner}).')
+
+
+def pipeline_summary(report):
+    """Sentences, computed from the table, on ST against the baseline."""
+    from st_stereo.tools.eval_pipeline import checks
+    rows = checks(report)
+    ratios = [r[2] for r in rows if 'ORB' in r[1]]
+    medians = [r[2] * 100 for r in rows if r[1].startswith('median')]
+    missed = [f'{r[0]} {r[1]}: {r[2] * 100:.2f} % (target {r[3]}, short by '
+              f'{(r[2] - 0.02) * 100:.2f} points)' for r in rows if not r[4] and 'outlier' in r[1]]
+    text = (f'Reading the table: ST finds {min(ratios):.0f} to {max(ratios):.0f} times the '
+            f'correct matches of ORB + KNN; its median depth error at 2.5-4.5 m is '
+            f'{min(medians):.2f} to {max(medians):.2f} % of the range.')
+    if missed:
+        text += ' Where it falls short: ' + '; '.join(missed) + '.'
+    return text
+
+
+def render_markdown(results, figures):
+    """Return the report's Markdown."""
+    from st_stereo.tools import eval_features as ef
+    from st_stereo.tools import eval_pipeline as ep
+    features = results['features']
+    quick = ' (quick run: fewer repeats, shifts and frames)' if results['quick'] else ''
+    return f"""# Paper reproduction: every table and figure with our code{quick}
+
+Regenerate with `st-stereo eval all --out docs/results.md` ({results["seconds"] / 60:.1f} min
+on this machine: {platform.processor() or platform.machine()}, one process). Raw numbers:
+`{figures}/results.json`. Real frames: `../shared/data/thermal` (see its README for authors and
+licences), area-resized to 80x60; simulated frames and sequences: `st_stereo.sim` (the
+ceiling rig with ground truth, `st-stereo sim list`).
+
+## 1. Features at 80x60 (paper Table 1, Fig. 5)
+
+{ef.__doc__.split(chr(10) + chr(10))[1]}
+
+Real frames:
+
+{ef.feature_markdown(features["real"]["rows"], features["real"]["missing"],
+                     features["real"]["images"])}
+Simulated frames (the bundled office sequence, left camera):
+
+{ef.feature_markdown(features["simulated"]["rows"], features["simulated"]["missing"],
+                     features["simulated"]["images"])}
+The paper (C++, i7-3687U) counted 117 (ORB), 34 (BRISK), 77 (FAST), 120 (Shi-Tomasi / GFTT),
+14 (SURF), 84 (AGAST), 33 (KAZE), 1734 (gamma = 0.01) and 777 (gamma = 0.1; its table labels
+both rows 0.01) on one Lepton frame. As there, phase congruency at gamma = 0.1 finds several
+times more features than any corner detector, and costs more time than FAST-type detectors
+(our phase congruency is numpy, not C++).
+
+![features, real]({figures}/features_people_lab.png)
+![features, simulated]({figures}/features_sim_office.png)
+
+## 2. Robustness to brightness changes (paper Figs. 6-7)
+
+g = f + beta on the 8-bit frames (all real and simulated frames above), clipped at 255;
+features per image / re-detection rate within 1 pixel of the beta = 0 features:
+
+{ef.illumination_markdown(results["illumination"])}
+![illumination]({figures}/illumination.png)
+
+{illumination_summary(results["illumination"])} What phase congruency loses comes from the
+clipping at 255 (saturated warm regions become flat). On the raw 14-bit counts the matcher uses,
+an offset beta changes nothing: the log-Gabor filters have no DC response.
+
+## 3. Sub-pixel accuracy (paper Figs. 8-10)
+
+The core's protocol (`st-stereo eval subpixel`: shift a frame by known sub-pixel amounts,
+match, compare) for ST alone (W = 9, gamma = 0.1, realistic degradations: 1 % noise, gain 1.05
+and offset 2 % on the right image) on every shared frame and on the simulated frames. The
+comparison with the peers (OpenCV phaseCorrelate, its iterative variant, scikit-image, SAD +
+parabola) on all five shared frames is in `docs/accuracy.md`.
+
+{_subpixel_rows(results["subpixel"])}
+
+## 4. Whole pipeline in 3-D with ground truth (paper Table 2, Figs. 11-12)
+
+{ep.__doc__.split(chr(10) + chr(10), 1)[1]}
+
+Sequences (`st-stereo sim list`): rendered through the realistic rig (barrel distortion, a
+misaligned right camera, Lepton noise, drift, FFC and brightness differences), rectified with
+their true calibration; every second frame scored.
+
+{ep.markdown_tables(results["pipeline"])}
+![Z error]({figures}/pipeline_z_error.png)
+
+{pipeline_summary(results["pipeline"])} The
+strict outlier rate is dominated by matches one pixel off a depth edge, that carry the
+disparity of the warmer (foreground) side: the lens blur (sigma 0.55 px) and rectification
+interpolation put the person's radiance in the floor pixel next to it, so the pixel is matched
+where it looks like the person. The +-1 px column counts what remains when such edge pixels are
+allowed either side's depth. StereoSGBM, dense, matches every pixel but most of them badly on
+textureless thermal surfaces.
+"""
