@@ -186,7 +186,7 @@ def standard_sequences():
             'sit_down', 'a person walks to a chair, sits, stands up and leaves',
             (sitter,), duration_s=12.0, rig=realistic_rig()),
         'office': SequenceSpec(
-            'office', 'the bundled recording: one person walks around, one sits down',
+            'office', 'The bundled recording: one person walks around, one sits down',
             (_walker([(1.5, 2.2), (-1.0, 2.5), (-1.2, 4.0), (1.2, 3.9), (1.0, 2.4)], tall,
                      speed=0.9), sitter),
             duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0)),
