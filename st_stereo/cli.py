@@ -368,6 +368,8 @@ def build_parser():
     add_lepton_parser(sub)
     from st_stereo.sim.tools import add_parser as add_sim_parser
     add_sim_parser(sub)
+    from st_stereo.tools.calibrate import add_parser as add_calibrate_parser
+    add_calibrate_parser(sub)
 
     p = sub.add_parser('demo', help='run ST on a simulated pair sequence (the main job)')
     p.add_argument('--frames', type=int, default=40)

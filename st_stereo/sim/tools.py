@@ -81,6 +81,33 @@ def command_render(args):
     return 0
 
 
+def command_calibration(args):
+    """Render pairs of a heated target (images + the true calibration) for ``calibrate``."""
+    import cv2
+
+    from st_stereo.core.calibration_target import CalibrationTarget
+    from st_stereo.core.camera_calibration import save_calibration
+    from st_stereo.sim.rig import realistic_rig
+    from st_stereo.sim.targets import render_calibration_pairs
+    target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
+    rig = realistic_rig()
+    pairs, _ = render_calibration_pairs(rig, target, args.pairs, seed=args.seed,
+                                        warm_features=not args.cold_features)
+    out = pathlib.Path(args.out)
+    for side in ('left', 'right'):
+        (out / side).mkdir(parents=True, exist_ok=True)
+    for index, pair in enumerate(pairs):
+        for side, image in zip(('left', 'right'), pair):
+            if not cv2.imwrite(str(out / side / f'{index:03d}.png'), image):
+                raise ValueError(f'{out / side}: could not write the images')
+    for side, calibration in zip(('left', 'right'), rig.calibrations()):
+        save_calibration(calibration, out / f'true_{side}.yaml')
+    print(f'wrote {len(pairs)} pairs of a {args.target} target to {out}/left, {out}/right and '
+          f'the true calibration to {out}/true_left.yaml, true_right.yaml; baseline '
+          f'{rig.baseline_m:.4f} m')
+    return 0
+
+
 def add_parser(sub):
     """Add ``sim`` and its subcommands to the ``st-stereo`` parser."""
     p = sub.add_parser('sim', help='the simulated rig: sequences, recordings with ground truth')
@@ -102,3 +129,14 @@ def add_parser(sub):
     s.add_argument('--out', required=True, help='output path without extension')
     s.add_argument('--scale', type=int, default=4, help='PNG magnification')
     s.set_defaults(handler=command_render)
+    s = sim.add_parser('calibration', help='render pairs of a heated calibration target')
+    s.add_argument('--target', default='circles', choices=('circles', 'acircles', 'chessboard'))
+    s.add_argument('--rows', type=int, default=4)
+    s.add_argument('--cols', type=int, default=5)
+    s.add_argument('--spacing', type=float, default=0.1, help='metres')
+    s.add_argument('--pairs', type=int, default=80)
+    s.add_argument('--cold-features', action='store_true',
+                   help='cold circles / holes in a warm plate (default: warm on cold)')
+    s.add_argument('--seed', type=int, default=0)
+    s.add_argument('--out', required=True, help='output directory')
+    s.set_defaults(handler=command_calibration)

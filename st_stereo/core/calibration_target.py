@@ -1,0 +1,212 @@
+"""
+Calibration targets and their detection in 80x60 thermal images.
+
+A heated target at 80x60 is a handful of blurred pixels per circle or square, where OpenCV's
+detectors (tuned for sharp, large images) fail. Detection therefore runs on a 4x upsampled,
+contrast-stretched copy (bicubic), and circle centres are then refined on the original pixels by
+an intensity-weighted centroid of the blob above its local background (unbiased for a blurred
+disk, whatever the blur). Polarity (warm dots on a cold plate or cold holes in a warm plate) is
+found by trying both. A detection is accepted only if the points fit the target's plane through
+a homography to within ``max_homography_rms`` pixels (lens distortion at 51 deg stays well
+below that over a target), which rejects partial or mis-ordered grids.
+"""
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+TARGET_KINDS = ('chessboard', 'circles', 'acircles')
+UPSAMPLE = 4
+
+
+class CalibrationInputError(ValueError):
+    """Calibration input that cannot be used; the message says what and where."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationTarget:
+    """
+    A planar target: kind, grid size and spacing.
+
+    ``rows`` x ``cols`` are inner corners for a chessboard and circles for circle grids; for an
+    asymmetric grid (``acircles``) ``cols`` is the number of circles per row and the rows are
+    offset by half a spacing (OpenCV's convention). ``spacing_m`` is the square side or the
+    distance between neighbouring circle centres in a row (metres).
+    """
+
+    kind: str
+    rows: int
+    cols: int
+    spacing_m: float
+
+    def __post_init__(self):
+        """Validate the description."""
+        if self.kind not in TARGET_KINDS:
+            raise CalibrationInputError(f'target: kind must be one of {", ".join(TARGET_KINDS)}, '
+                                        f'got {self.kind!r}')
+        if self.rows < 2 or self.cols < 2:
+            raise CalibrationInputError(f'target: need at least 2 x 2 points, got '
+                                        f'{self.rows} x {self.cols}')
+        if self.kind != 'acircles' and self.rows == self.cols:
+            raise CalibrationInputError(
+                f'target: a square {self.kind} grid ({self.rows} x {self.cols}) has no defined '
+                'orientation; use different row and column counts')
+        if not self.spacing_m > 0:
+            raise CalibrationInputError(f'target: spacing must be positive, got '
+                                        f'{self.spacing_m}')
+
+    @property
+    def pattern_size(self):
+        """Return the pattern size as OpenCV wants it: (points per row, rows)."""
+        return (self.cols, self.rows)
+
+    @property
+    def count(self):
+        """Return the number of points."""
+        return self.rows * self.cols
+
+    def object_points(self):
+        """Target points (n, 3) in metres on z = 0, in OpenCV's detection order."""
+        rows, cols = np.mgrid[0:self.rows, 0:self.cols]
+        if self.kind == 'acircles':
+            x = (2 * cols + rows % 2) * self.spacing_m / 2.0
+            y = rows * self.spacing_m / 2.0
+        else:
+            x, y = cols * self.spacing_m, rows * self.spacing_m
+        return np.column_stack([x.ravel(), y.ravel(), np.zeros(self.count)]).astype(np.float32)
+
+
+def to_u8(image):
+    """Contrast-stretch to 8 bits (0.5th-99.5th percentile)."""
+    image = np.asarray(image, dtype=np.float64)
+    low, high = np.percentile(image, [0.5, 99.5])
+    return np.clip((image - low) * 255.0 / max(high - low, 1e-9), 0, 255).astype(np.uint8)
+
+
+def upsample(image_u8, factor=UPSAMPLE):
+    """Bicubic upsampling; pixel centres map as ``x_up = (x + 0.5) f - 0.5``."""
+    return cv2.resize(image_u8, None, fx=factor, fy=factor, interpolation=cv2.INTER_CUBIC)
+
+
+def from_upsampled(points, factor=UPSAMPLE):
+    """Map upsampled pixel coordinates back to the original image."""
+    return (np.asarray(points, dtype=np.float64) + 0.5) / factor - 0.5
+
+
+def _blob_detector(target, dark_blobs):
+    params = cv2.SimpleBlobDetector_Params()
+    params.filterByColor = True
+    params.blobColor = 0 if dark_blobs else 255
+    params.minThreshold, params.maxThreshold, params.thresholdStep = 20, 235, 10
+    params.filterByArea = True
+    params.minArea, params.maxArea = 6.0, 4000.0
+    params.filterByCircularity = True
+    params.minCircularity = 0.5
+    params.filterByConvexity = False
+    params.filterByInertia = True
+    params.minInertiaRatio = 0.2
+    params.minDistBetweenBlobs = 2.0
+    return cv2.SimpleBlobDetector_create(params)
+
+
+def refine_circle_centres(image, centres, radius_px, warm):
+    """
+    Intensity-weighted centroids of blurred blobs around rough centres (n, 2), original pixels.
+
+    The background is the median of a ring just outside the blob; only the blob's excess over it
+    (warm blobs) or deficit (cold blobs) weighs. Iterated three times from the rough centre.
+    """
+    image = np.asarray(image, dtype=np.float64)
+    rows, cols = image.shape
+    refined = np.array(centres, dtype=np.float64)
+    yy, xx = np.mgrid[0:rows, 0:cols]
+    for _ in range(3):
+        for index, (cx, cy) in enumerate(refined):
+            distance = np.hypot(xx - cx, yy - cy)
+            ring = image[(distance > radius_px * 1.4) & (distance <= radius_px * 2.0)]
+            inside = distance <= radius_px * 1.2
+            if not len(ring) or not inside.any():
+                continue
+            excess = (image - np.median(ring)) * (1.0 if warm else -1.0)
+            weights = np.where(inside, np.clip(excess, 0.0, None), 0.0)
+            total = weights.sum()
+            if total > 0:
+                refined[index] = (float((weights * xx).sum() / total),
+                                  float((weights * yy).sum() / total))
+    return refined
+
+
+def homography_rms(target, points):
+    """RMS distance (pixels) of detected points to the best homography of the target plane."""
+    model = target.object_points()[:, :2].astype(np.float64)
+    homography, _ = cv2.findHomography(model, points.astype(np.float64), 0)
+    if homography is None:
+        return float('inf')
+    mapped = cv2.perspectiveTransform(model.reshape(-1, 1, 2), homography).reshape(-1, 2)
+    return float(np.sqrt(np.mean(np.sum((mapped - points) ** 2, axis=1))))
+
+
+def canonical_order(target, points, max_rms):
+    """
+    Reverse a detection that starts at the far end, so left and right views agree on point 0.
+
+    OpenCV may return a grid in either direction; point 0 is made the one nearer the image's
+    top-left (smaller x + y than the last point), provided the reversed order still fits the
+    target (for an asymmetric grid it may not).
+    """
+    if points[0].sum() > points[-1].sum():
+        reverse = points[::-1].copy()
+        if homography_rms(target, reverse) <= max_rms:
+            return reverse
+    return points
+
+
+@dataclasses.dataclass
+class Detection:
+    """Target points found in one image (n, 2), with how they were found."""
+
+    points: np.ndarray
+    warm_features: bool
+    homography_rms: float
+
+
+def detect_target(image, target, max_homography_rms=0.5):
+    """
+    Find the target in one raw image; returns a Detection or None (not found / unreliable).
+
+    Both polarities are tried; circle centres are refined on the original pixels, chessboard
+    corners come from ``findChessboardCornersSB`` on the upsampled image (its own sub-pixel
+    fit).
+    """
+    base = to_u8(image)
+    found = []
+    for warm in (True, False):
+        up = upsample(base if warm else 255 - base)
+        if target.kind == 'chessboard':
+            ok, corners = cv2.findChessboardCornersSB(
+                up, target.pattern_size,
+                flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+            if not ok:
+                continue
+            points = from_upsampled(corners.reshape(-1, 2))
+        else:
+            flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if target.kind == 'acircles'
+                     else cv2.CALIB_CB_SYMMETRIC_GRID)
+            # In the (possibly inverted) image the target's features are bright: blobColor 255.
+            ok, centres = cv2.findCirclesGrid(up, target.pattern_size, flags=flags,
+                                              blobDetector=_blob_detector(target, False))
+            if not ok:
+                continue
+            rough = from_upsampled(centres.reshape(-1, 2))
+            spacing = np.median(np.linalg.norm(np.diff(rough, axis=0), axis=1))
+            points = refine_circle_centres(image, rough, max(spacing * 0.3, 1.0), warm)
+            if target.kind == 'acircles':
+                spacing /= 2.0
+        points = canonical_order(target, points, max_homography_rms)
+        rms = homography_rms(target, points)
+        if rms <= max_homography_rms:
+            found.append(Detection(points=points, warm_features=warm, homography_rms=rms))
+    if not found:
+        return None
+    return min(found, key=lambda d: d.homography_rms)

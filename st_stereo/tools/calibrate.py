@@ -1,0 +1,302 @@
+"""
+``st-stereo calibrate``: recorded pairs of a heated target -> left.yaml / right.yaml + a report.
+
+Pairs come from a directory of images (``left*.png`` / ``right*.png`` in it, or ``left/`` and
+``right/`` subdirectories, paired in sorted order), from two raw Lepton captures (paired by
+stamp), or from a rosbag2 (the raw image topics ending in ``left/image_raw`` and
+``right/image_raw``, paired by identical stamps; read with ``rosbags``, no ROS needed). The
+target is described on the command line. Detection, calibration and the distortion model are
+explained in ``st_stereo.core.calibration_target`` and ``st_stereo.core.stereo_calibration``.
+"""
+
+import json
+import pathlib
+
+import cv2
+import numpy as np
+
+from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
+                                               detect_target, to_u8)
+from st_stereo.core.camera_calibration import save_calibration
+from st_stereo.core.image_io import read_thermal_image
+from st_stereo.core.rectification import StereoRectifier
+from st_stereo.core.stereo_calibration import calibrate_stereo, coverage
+
+IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
+MIN_COVERED_CELLS = 0.5
+
+
+def pairs_from_directory(directory):
+    """Image pairs of a directory: left*/right* files, or left/ and right/ subdirectories."""
+    directory = pathlib.Path(directory)
+    if not directory.is_dir():
+        raise CalibrationInputError(f'{directory}: no such directory')
+
+    def images(folder, prefix=''):
+        return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                      and p.name.lower().startswith(prefix))
+    if (directory / 'left').is_dir() and (directory / 'right').is_dir():
+        left, right = images(directory / 'left'), images(directory / 'right')
+    else:
+        left, right = images(directory, 'left'), images(directory, 'right')
+    if not left and not right:
+        raise CalibrationInputError(f'{directory}: no pairs (expected left*.png and right*.png, '
+                                    'or left/ and right/ subdirectories)')
+    if len(left) != len(right):
+        raise CalibrationInputError(f'{directory}: {len(left)} left images but {len(right)} '
+                                    'right images')
+    for a, b in zip(left, right):
+        yield str(a), read_thermal_image(a), read_thermal_image(b)
+
+
+def pairs_from_bag(path):
+    """Pairs of a rosbag2's raw image topics with identical stamps (others are counted)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise CalibrationInputError(f'{path}: no such bag')
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    frames = {'left': {}, 'right': {}}
+    with Reader(path) as reader:
+        wanted = {c.id: side for c in reader.connections for side in frames
+                  if c.topic.endswith(f'{side}/image_raw')}
+        if set(wanted.values()) != set(frames):
+            raise CalibrationInputError(f'{path}: expected topics ending in left/image_raw and '
+                                        f'right/image_raw, found {sorted(reader.topics)}')
+        for connection, _, data in reader.messages(
+                connections=[c for c in reader.connections if c.id in wanted]):
+            msg = typestore.deserialize_cdr(data, connection.msgtype)
+            if msg.encoding not in ('mono16', 'mono8'):
+                raise CalibrationInputError(f'{path}: {connection.topic}: encoding '
+                                            f'{msg.encoding!r}, expected mono16 or mono8')
+            dtype = '<u2' if msg.encoding == 'mono16' else 'u1'
+            pixels = np.frombuffer(msg.data.tobytes(), dtype).reshape(msg.height, -1)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            frames[wanted[connection.id]][stamp] = pixels[:, :msg.width].copy()
+    for stamp in sorted(set(frames['left']) & set(frames['right'])):
+        yield f'{path.name}@{stamp}', frames['left'][stamp], frames['right'][stamp]
+
+
+def pairs_from_captures(left_path, right_path, max_delta=0.05):
+    """Pairs of two raw Lepton captures, matched by stamp (``PairSynchronizer``)."""
+    from st_stereo.lepton.capture import decode_capture
+    from st_stereo.lepton.pairing import PairSynchronizer
+    streams = [decode_capture(left_path)[0], decode_capture(right_path)[0]]
+    sync = PairSynchronizer(max_delta=max_delta)
+    pairs = []
+    merged = sorted([(f.stamp, side, f) for side, frames in zip(('left', 'right'), streams)
+                     for f in frames], key=lambda item: item[0])
+    for _, side, frame in merged:
+        pairs.extend(sync.push(side, frame))
+    for pair in pairs:
+        yield f'capture@{pair.stamp:.3f}', pair.left.pixels, pair.right.pixels
+
+
+class Collector:
+    """Detections of every pair, with counts of what was rejected and why."""
+
+    def __init__(self, target):
+        self.target = target
+        self.size = None
+        self.names, self.left, self.right = [], [], []
+        self.left_only, self.right_only = [], []
+        self.counts = {'pairs': 0, 'both': 0, 'left_only': 0, 'right_only': 0, 'neither': 0}
+        self.example = None
+
+    def add(self, name, left, right):
+        """Detect the target in one pair."""
+        left, right = np.asarray(left), np.asarray(right)
+        if left.shape != right.shape:
+            raise CalibrationInputError(f'{name}: left is {left.shape[1]}x{left.shape[0]} but '
+                                        f'right is {right.shape[1]}x{right.shape[0]}')
+        size = (left.shape[1], left.shape[0])
+        if self.size is None:
+            self.size = size
+        elif size != self.size:
+            raise CalibrationInputError(f'{name}: images are {size[0]}x{size[1]}, earlier ones '
+                                        f'{self.size[0]}x{self.size[1]}')
+        self.counts['pairs'] += 1
+        found = detect_target(left, self.target), detect_target(right, self.target)
+        if found[0] and found[1]:
+            self.counts['both'] += 1
+            self.names.append(name)
+            self.left.append(found[0].points)
+            self.right.append(found[1].points)
+            if self.example is None:
+                self.example = (left, right, found[0].points, found[1].points)
+        elif found[0]:
+            self.counts['left_only'] += 1
+            self.left_only.append(found[0].points)
+        elif found[1]:
+            self.counts['right_only'] += 1
+            self.right_only.append(found[1].points)
+        else:
+            self.counts['neither'] += 1
+
+
+def calibrate(collector, min_coverage=MIN_COVERED_CELLS):
+    """Calibrate from a Collector; clear errors when the data cannot support it."""
+    counts = collector.counts
+    if not counts['pairs']:
+        raise CalibrationInputError('no pairs in the input')
+    if counts['both'] + counts['left_only'] + counts['right_only'] == 0:
+        raise CalibrationInputError(f'target never found in {counts["pairs"]} pairs (check '
+                                    'the kind, rows, columns and that it is fully in view)')
+    cells = {}
+    for side, points in (('left', collector.left + collector.left_only),
+                         ('right', collector.right + collector.right_only)):
+        grid = coverage(points, collector.size)
+        cells[side] = grid
+        share = float((grid > 0).mean())
+        if share < min_coverage:
+            raise CalibrationInputError(
+                f'too little coverage: the target touched {share * 100:.0f} % of the {side} '
+                f'image cells (need {min_coverage * 100:.0f} %); move it towards the edges and '
+                f'corners')
+    result = calibrate_stereo(collector.target, collector.left, collector.right,
+                              collector.size, collector.left_only, collector.right_only)
+    return result, cells
+
+
+def tilts(result):
+    """Angle between each view's target normal and the left optical axis, degrees."""
+    values = []
+    for rvec in result.left.rotations:
+        rotation, _ = cv2.Rodrigues(rvec)
+        values.append(float(np.degrees(np.arccos(min(1.0, abs(rotation[2, 2]))))))
+    return np.array(values)
+
+
+def report(result, cells, counts, size):
+    """Return the numbers of a calibration as a dict (JSON-ready)."""
+    left, right = result.calibrations(size)
+    vertical = result.vertical_disparity
+    angle = tilts(result)
+    return {
+        'pairs': counts, 'views_used': result.views, 'image_size': list(size),
+        'rms_px': {'left': result.left.rms, 'right': result.right.rms,
+                   'stereo': result.stereo_rms},
+        'rectified_vertical_disparity_px': {'median': float(np.median(vertical)),
+                                            'p95': float(np.percentile(vertical, 95)),
+                                            'points': int(len(vertical))},
+        'baseline_m': result.baseline_m,
+        'left': {'fx': left.camera_matrix[0, 0], 'fy': left.camera_matrix[1, 1],
+                 'cx': left.camera_matrix[0, 2], 'cy': left.camera_matrix[1, 2],
+                 'distortion': left.distortion.tolist()},
+        'right': {'fx': right.camera_matrix[0, 0], 'fy': right.camera_matrix[1, 1],
+                  'cx': right.camera_matrix[0, 2], 'cy': right.camera_matrix[1, 2],
+                  'distortion': right.distortion.tolist()},
+        'coverage_cells': {side: grid.tolist() for side, grid in cells.items()},
+        'tilt_deg': {'min': float(angle.min()), 'median': float(np.median(angle)),
+                     'max': float(angle.max())},
+    }
+
+
+def report_text(numbers):
+    """Human-readable report."""
+    v = numbers['rectified_vertical_disparity_px']
+    lines = [
+        f'pairs: {numbers["pairs"]["pairs"]}, target in both: {numbers["pairs"]["both"]}, '
+        f'left only: {numbers["pairs"]["left_only"]}, right only: '
+        f'{numbers["pairs"]["right_only"]}, neither: {numbers["pairs"]["neither"]}',
+        f'RMS reprojection error: left {numbers["rms_px"]["left"]:.3f} px, right '
+        f'{numbers["rms_px"]["right"]:.3f} px, stereo {numbers["rms_px"]["stereo"]:.3f} px',
+        f'rectified vertical disparity of the target points: median {v["median"]:.3f} px, '
+        f'p95 {v["p95"]:.3f} px ({v["points"]} points)',
+        f'baseline: {numbers["baseline_m"]:.4f} m',
+    ]
+    for side in ('left', 'right'):
+        c = numbers[side]
+        lines.append(f'{side}: fx {c["fx"]:.3f} fy {c["fy"]:.3f} cx {c["cx"]:.3f} cy '
+                     f'{c["cy"]:.3f} k1 {c["distortion"][0]:.4f} k2 {c["distortion"][1]:.4f}')
+    t = numbers['tilt_deg']
+    lines.append(f'target tilt to the optical axis: {t["min"]:.0f} to {t["max"]:.0f} deg '
+                 f'(median {t["median"]:.0f})')
+    for side, grid in numbers['coverage_cells'].items():
+        lines.append(f'{side} coverage (points per image cell, top row first):')
+        lines += ['  ' + ' '.join(f'{n:4d}' for n in row) for row in grid]
+    return '\n'.join(lines)
+
+
+def figure(collector, result, path, scale=4):
+    """PNG: detected targets (top) and the rectified pair with epipolar lines (bottom)."""
+    left, right, left_points, right_points = collector.example
+    panels = []
+    for image, points in ((left, left_points), (right, right_points)):
+        big = cv2.cvtColor(cv2.resize(to_u8(image), None, fx=scale, fy=scale,
+                                      interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
+        for x, y in points:
+            cv2.circle(big, (int((x + 0.5) * scale), int((y + 0.5) * scale)), 3, (0, 0, 255),
+                       1, cv2.LINE_AA)
+        panels.append(big)
+    calibrations = result.calibrations(collector.size)
+    rectified = StereoRectifier(*calibrations).rectify(left, right)
+    stretched = to_u8(np.hstack(rectified))
+    bottom = cv2.cvtColor(cv2.resize(stretched, None, fx=scale, fy=scale,
+                                     interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
+    for row in range(4, collector.size[1], 6):
+        y = int((row + 0.5) * scale)
+        cv2.line(bottom, (0, y), (bottom.shape[1], y), (0, 200, 0), 1)
+    image = np.vstack([np.hstack(panels), bottom])
+    if not cv2.imwrite(str(path), image):
+        raise CalibrationInputError(f'{path}: could not write the figure')
+
+
+def main(args):
+    """Run ``st-stereo calibrate``."""
+    from tqdm import tqdm
+    target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
+    sources = [s for s in (args.images, args.bag, args.capture) if s]
+    if len(sources) != 1:
+        raise CalibrationInputError('give exactly one input: --images DIR, --bag BAG or '
+                                    '--capture LEFT RIGHT')
+    if args.images:
+        pairs = pairs_from_directory(args.images)
+    elif args.bag:
+        pairs = pairs_from_bag(args.bag)
+    else:
+        pairs = pairs_from_captures(*args.capture)
+    collector = Collector(target)
+    with tqdm(desc='detecting', unit='pair', disable=args.quiet) as bar:
+        for name, left, right in pairs:
+            collector.add(name, left, right)
+            bar.update(1)
+            bar.set_postfix(found=collector.counts['both'])
+    result, cells = calibrate(collector)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    left, right = result.calibrations(collector.size, (args.left_name, args.right_name))
+    save_calibration(left, out / 'left.yaml')
+    save_calibration(right, out / 'right.yaml')
+    numbers = report(result, cells, collector.counts, collector.size)
+    (out / 'calibration_report.json').write_text(json.dumps(numbers, indent=1))
+    text = report_text(numbers)
+    (out / 'calibration_report.txt').write_text(text + '\n')
+    figure(collector, result, out / 'calibration.png')
+    print(text)
+    print(f'wrote {out / "left.yaml"}, {out / "right.yaml"}, calibration_report.json / .txt and '
+          f'calibration.png in {out}')
+    return 0
+
+
+def add_parser(sub):
+    """Add ``calibrate`` to the ``st-stereo`` parser."""
+    p = sub.add_parser('calibrate', help='stereo calibration from pairs of a heated target')
+    p.add_argument('--images', help='directory of pairs (left*/right* or left/ and right/)')
+    p.add_argument('--bag', help='rosbag2 with */left/image_raw and */right/image_raw')
+    p.add_argument('--capture', nargs=2, metavar=('LEFT', 'RIGHT'),
+                   help='two raw Lepton captures')
+    p.add_argument('--target', required=True, choices=('circles', 'acircles', 'chessboard'),
+                   help='circles: symmetric grid; acircles: asymmetric grid; chessboard')
+    p.add_argument('--rows', type=int, required=True,
+                   help='rows of circles, or of inner corners for a chessboard')
+    p.add_argument('--cols', type=int, required=True,
+                   help='circles per row, or inner corners per row for a chessboard')
+    p.add_argument('--spacing', type=float, required=True,
+                   help='square side, or distance between circle centres in a row, metres')
+    p.add_argument('--out', required=True, help='output directory')
+    p.add_argument('--left-name', default='left', help='camera_name of the left camera')
+    p.add_argument('--right-name', default='right', help='camera_name of the right camera')
+    p.add_argument('--quiet', action='store_true', help='no progress bar')
+    p.set_defaults(handler=main)
