@@ -200,8 +200,8 @@ def print_summary(driver, matcher, monitor, depth):
         span = monitor.times[-1] - monitor.times[0]
         print(f'  point clouds per second: {(len(monitor.times) - 1) / span:.2f}')
     if len(latencies):
-        print(f'  latency stamp -> points2: median {np.median(latencies):.1f} ms, p99 '
-              f'{np.percentile(latencies, 99):.1f} ms')
+        print(f'  latency (pair published -> points2 received): median '
+              f'{np.median(latencies):.1f} ms, p99 {np.percentile(latencies, 99):.1f} ms')
     if monitor.matches:
         print(f'  matches per pair: median {np.median(monitor.matches):.0f}')
     if monitor.depths and depth is not None:
