@@ -10,12 +10,10 @@ from st_stereo.core.rectification import StereoRectifier
 from st_stereo.sim.render import disparity_error, ground_truth, render_temperature
 from st_stereo.sim.rig import (distort_normalised, realistic_rig, RigGeometry,
                                undistort_normalised)
-from st_stereo.sim.scene import RoomShell, Scene, ThermalMaterial
+from st_stereo.sim.scene import FACES, RoomShell, Scene, ThermalMaterial
 from st_stereo.sim.sensor import LeptonSensor, SensorModel
 from st_stereo.sim.sequences import (Keyframe, PERSON_LABEL_BASE, PersonScript,
                                      SequenceRenderer, SequenceSpec, standard_sequences)
-
-FACES = ('x-', 'x+', 'y-', 'y+', 'floor', 'ceiling')
 
 
 @pytest.fixture(scope='module')

@@ -16,6 +16,8 @@ import dataclasses
 import cv2
 import numpy as np
 
+from st_stereo.core.image_io import contrast_stretch_u8
+
 TARGET_KINDS = ('chessboard', 'circles', 'acircles')
 UPSAMPLE = 4
 
@@ -79,9 +81,7 @@ class CalibrationTarget:
 
 def to_u8(image):
     """Contrast-stretch to 8 bits (0.5th-99.5th percentile)."""
-    image = np.asarray(image, dtype=np.float64)
-    low, high = np.percentile(image, [0.5, 99.5])
-    return np.clip((image - low) * 255.0 / max(high - low, 1e-9), 0, 255).astype(np.uint8)
+    return contrast_stretch_u8(image, 0.5, 99.5)
 
 
 def upsample(image_u8, factor=UPSAMPLE):

@@ -1,13 +1,9 @@
 """The driver's ``bag`` source: the raw image topics of a rosbag2 as two frame streams."""
 
-import pathlib
-
-from rclpy.serialization import deserialize_message
-from rosbags.rosbag2 import Reader
-from sensor_msgs.msg import Image
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.reader import EndOfStream, LeptonFrame
 from st_stereo.nodes.conversions import msg_to_image
+from st_stereo.tools.bag_images import raw_image_messages
 
 
 class _BagTime:
@@ -54,19 +50,7 @@ class BagSide:
 
 def open_bag_sides(path):
     """Open the left and right image_raw streams of a bag (topics ending in side/image_raw)."""
-    path = pathlib.Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f'{path}: no such bag')
     streams = {'left': [], 'right': []}
-    with Reader(path) as reader:
-        wanted = {c.id: side for c in reader.connections for side in streams
-                  if c.topic.endswith(f'{side}/image_raw')}
-        if set(wanted.values()) != set(streams):
-            raise ValueError(f'{path}: expected topics ending in left/image_raw and '
-                             f'right/image_raw, found {sorted(reader.topics)}')
-        for connection, _, data in reader.messages(
-                connections=[c for c in reader.connections if c.id in wanted]):
-            msg = deserialize_message(bytes(data), Image)
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            streams[wanted[connection.id]].append((stamp, msg))
+    for side, stamp_ns, msg in raw_image_messages(path):
+        streams[side].append((stamp_ns * 1e-9, msg))
     return [BagSide(f'{side}/image_raw', streams[side]) for side in ('left', 'right')]

@@ -89,11 +89,13 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
                                   ('camera_info', 'sensor_msgs/msg/CameraInfo')):
                 connections[side, name] = writer.add_connection(
                     f'{namespace}/{side}/{name}', msgtype, typestore=typestore)
+        builders = [_messages(typestore, f'stereo_{side}_optical_frame')
+                    for side in ('left', 'right')]
         for index, t in enumerate(spec.frame_times):
             frame = renderer.frame(t)
             stamp_ns = START_NS + int(round(t * 1e9))
             for side_index, side in enumerate(('left', 'right')):
-                image, camera_info = _messages(typestore, f'stereo_{side}_optical_frame')
+                image, camera_info = builders[side_index]
                 for name, msg in (('image_raw', image(frame[side], stamp_ns)),
                                   ('camera_info', camera_info(calibrations[side_index],
                                                               stamp_ns))):

@@ -8,16 +8,13 @@ optics and Lepton sensor model as the sequences.
 """
 
 import dataclasses
-import math
 
 import numpy as np
 
 from st_stereo.sim.render import render_temperature
 from st_stereo.sim.rig import rotation_xyz
-from st_stereo.sim.scene import RoomShell, Scene, ThermalMaterial
+from st_stereo.sim.scene import FACES, RoomShell, Scene, ThermalMaterial
 from st_stereo.sim.sensor import LeptonSensor, SensorModel
-
-FACES = ('x-', 'x+', 'y-', 'y+', 'floor', 'ceiling')
 
 
 @dataclasses.dataclass
@@ -169,10 +166,3 @@ def render_calibration_pairs(rig, target, count, seed=0, warm_features=True, sup
                   for sensor, camera in zip(sensors, rig.cameras())]
         pairs.append(tuple(frames))
     return pairs, poses
-
-
-def tilt_of(rotation, camera_rotation):
-    """Angle (degrees) between the plate normal and the camera's optical axis."""
-    normal = rotation[:, 2]
-    axis = camera_rotation[2]
-    return math.degrees(math.acos(min(1.0, abs(float(normal @ axis)))))

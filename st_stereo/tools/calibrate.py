@@ -21,6 +21,7 @@ from st_stereo.core.camera_calibration import save_calibration
 from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.stereo_calibration import calibrate_stereo, coverage
+from st_stereo.tools.bag_images import raw_image_messages
 
 IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
 MIN_COVERED_CELLS = 0.5
@@ -51,31 +52,19 @@ def pairs_from_directory(directory):
 
 def pairs_from_bag(path):
     """Pairs of a rosbag2's raw image topics with identical stamps (others are counted)."""
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
-    path = pathlib.Path(path)
-    if not path.exists():
-        raise CalibrationInputError(f'{path}: no such bag')
-    typestore = get_typestore(Stores.ROS2_JAZZY)
     frames = {'left': {}, 'right': {}}
-    with Reader(path) as reader:
-        wanted = {c.id: side for c in reader.connections for side in frames
-                  if c.topic.endswith(f'{side}/image_raw')}
-        if set(wanted.values()) != set(frames):
-            raise CalibrationInputError(f'{path}: expected topics ending in left/image_raw and '
-                                        f'right/image_raw, found {sorted(reader.topics)}')
-        for connection, _, data in reader.messages(
-                connections=[c for c in reader.connections if c.id in wanted]):
-            msg = typestore.deserialize_cdr(data, connection.msgtype)
+    try:
+        for side, stamp, msg in raw_image_messages(path):
             if msg.encoding not in ('mono16', 'mono8'):
-                raise CalibrationInputError(f'{path}: {connection.topic}: encoding '
+                raise CalibrationInputError(f'{path}: {side}/image_raw: encoding '
                                             f'{msg.encoding!r}, expected mono16 or mono8')
             dtype = '<u2' if msg.encoding == 'mono16' else 'u1'
             pixels = np.frombuffer(msg.data.tobytes(), dtype).reshape(msg.height, -1)
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            frames[wanted[connection.id]][stamp] = pixels[:, :msg.width].copy()
+            frames[side][stamp] = pixels[:, :msg.width].copy()
+    except FileNotFoundError as error:
+        raise CalibrationInputError(str(error)) from None
     for stamp in sorted(set(frames['left']) & set(frames['right'])):
-        yield f'{path.name}@{stamp}', frames['left'][stamp], frames['right'][stamp]
+        yield f'{pathlib.Path(path).name}@{stamp}', frames['left'][stamp], frames['right'][stamp]
 
 
 def pairs_from_captures(left_path, right_path, max_delta=0.05):

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from st_stereo.core.config import STConfig
-from st_stereo.core.image_io import read_thermal_image, resize_area
+from st_stereo.core.image_io import contrast_stretch_u8, read_thermal_image, resize_area
 from st_stereo.core.phase_congruency import feature_strength
 
 PC_GAMMAS = (0.3, 0.1, 0.01)
@@ -68,9 +68,7 @@ def opencv_detector(name):
 
 def to_u8(image):
     """Contrast-stretch a thermal frame to 8 bits (1st-99.5th percentile)."""
-    image = np.asarray(image, dtype=np.float64)
-    low, high = np.percentile(image, [1.0, 99.5])
-    return np.clip((image - low) * 255.0 / max(high - low, 1e-9), 0, 255).astype(np.uint8)
+    return contrast_stretch_u8(image, 1.0, 99.5)
 
 
 def pc_features(image_u8, gamma, config=None):
@@ -178,12 +176,13 @@ def overlay_figure(image, path, scale=4):
     big = cv2.resize(base_u8, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
     for method in ['original'] + methods:
         panel = cv2.cvtColor(big, cv2.COLOR_GRAY2BGR)
+        label = method
         if method != 'original':
-            for x, y in detect(method, base_u8, detectors):
+            features = detect(method, base_u8, detectors)
+            for x, y in features:
                 cv2.circle(panel, (int(x * scale + scale / 2), int(y * scale + scale / 2)),
                            max(1, scale // 3), (0, 0, 255), -1)
-        label = method if method == 'original' else \
-            f'{method}: {len(detect(method, base_u8, detectors))}'
+            label = f'{method}: {len(features)}'
         cv2.rectangle(panel, (0, 0), (panel.shape[1], 14), (0, 0, 0), -1)
         cv2.putText(panel, label, (2, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1,
                     cv2.LINE_AA)
