@@ -3,12 +3,13 @@ Calibration targets and their detection in 80x60 thermal images.
 
 A heated target at 80x60 is a handful of blurred pixels per circle or square, where OpenCV's
 detectors (tuned for sharp, large images) fail. Detection therefore runs on a 4x upsampled,
-contrast-stretched copy (bicubic), and circle centres are then refined on the original pixels by
-an intensity-weighted centroid of the blob above its local background (unbiased for a blurred
-disk, whatever the blur). Polarity (warm dots on a cold plate or cold holes in a warm plate) is
-found by trying both. A detection is accepted only if the points fit the target's plane through
-a homography to within ``max_homography_rms`` pixels (lens distortion at 51 deg stays well
-below that over a target), which rejects partial or mis-ordered grids.
+contrast-stretched copy (bicubic), which gives the grid and rough positions; every circle centre
+and chessboard corner is then fitted on the original pixels with a model of a blurred,
+pixel-integrated blob or corner (``st_stereo.core.target_refinement``). Polarity (warm dots on a
+cold plate or cold holes in a warm plate) is found by trying both. A detection is accepted only
+if the points fit the target's plane through a homography to within ``max_homography_rms``
+pixels (lens distortion at 51 deg stays well below that over a target), which rejects partial or
+mis-ordered grids.
 """
 
 import dataclasses
@@ -17,6 +18,7 @@ import cv2
 import numpy as np
 
 from st_stereo.core.image_io import contrast_stretch_u8
+from st_stereo.core.target_refinement import refine_chessboard_corners, refine_circle_centres
 
 TARGET_KINDS = ('chessboard', 'circles', 'acircles')
 UPSAMPLE = 4
@@ -110,33 +112,6 @@ def _blob_detector(target, dark_blobs):
     return cv2.SimpleBlobDetector_create(params)
 
 
-def refine_circle_centres(image, centres, radius_px, warm):
-    """
-    Intensity-weighted centroids of blurred blobs around rough centres (n, 2), original pixels.
-
-    The background is the median of a ring just outside the blob; only the blob's excess over it
-    (warm blobs) or deficit (cold blobs) weighs. Iterated three times from the rough centre.
-    """
-    image = np.asarray(image, dtype=np.float64)
-    rows, cols = image.shape
-    refined = np.array(centres, dtype=np.float64)
-    yy, xx = np.mgrid[0:rows, 0:cols]
-    for _ in range(3):
-        for index, (cx, cy) in enumerate(refined):
-            distance = np.hypot(xx - cx, yy - cy)
-            ring = image[(distance > radius_px * 1.4) & (distance <= radius_px * 2.0)]
-            inside = distance <= radius_px * 1.2
-            if not len(ring) or not inside.any():
-                continue
-            excess = (image - np.median(ring)) * (1.0 if warm else -1.0)
-            weights = np.where(inside, np.clip(excess, 0.0, None), 0.0)
-            total = weights.sum()
-            if total > 0:
-                refined[index] = (float((weights * xx).sum() / total),
-                                  float((weights * yy).sum() / total))
-    return refined
-
-
 def homography_rms(target, points):
     """RMS distance (pixels) of detected points to the best homography of the target plane."""
     model = target.object_points()[:, :2].astype(np.float64)
@@ -171,16 +146,24 @@ class Detection:
     homography_rms: float
 
 
-def detect_target(image, target, max_homography_rms=0.5):
-    """
-    Find the target in one raw image; returns a Detection or None (not found / unreliable).
+MIN_CIRCLE_SPACING_PX = 3.5
+REJECTIONS = ('not found', 'too small', 'fit failed', 'not planar')
 
-    Both polarities are tried; circle centres are refined on the original pixels, chessboard
-    corners come from ``findChessboardCornersSB`` on the upsampled image (its own sub-pixel
-    fit).
+
+def find_target(image, target, max_homography_rms=0.5):
+    """
+    Find the target in one raw image: (Detection, None) or (None, the reason it was rejected).
+
+    Both polarities are tried. OpenCV's detectors on the upsampled image give rough positions
+    and the grid order; each point is then fitted on the original pixels
+    (``st_stereo.core.target_refinement``). Reasons, in ``REJECTIONS``: ``not found`` (no full
+    grid), ``too small`` (circles nearer than ``MIN_CIRCLE_SPACING_PX``: below that, blobs
+    merge and their fitted centres err by up to 0.3 px), ``fit failed`` (a point did not fit
+    its model), ``not planar`` (points off the target's homography by more than
+    ``max_homography_rms``: a partial or mis-ordered grid).
     """
     base = to_u8(image)
-    found = []
+    found, reasons = [], []
     for warm in (True, False):
         up = upsample(base if warm else 255 - base)
         if target.kind == 'chessboard':
@@ -189,7 +172,8 @@ def detect_target(image, target, max_homography_rms=0.5):
                 flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
             if not ok:
                 continue
-            points = from_upsampled(corners.reshape(-1, 2))
+            refined = refine_chessboard_corners(image, from_upsampled(corners.reshape(-1, 2)),
+                                                target.pattern_size)
         else:
             flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if target.kind == 'acircles'
                      else cv2.CALIB_CB_SYMMETRIC_GRID)
@@ -199,14 +183,32 @@ def detect_target(image, target, max_homography_rms=0.5):
             if not ok:
                 continue
             rough = from_upsampled(centres.reshape(-1, 2))
-            spacing = np.median(np.linalg.norm(np.diff(rough, axis=0), axis=1))
-            points = refine_circle_centres(image, rough, max(spacing * 0.3, 1.0), warm)
-            if target.kind == 'acircles':
-                spacing /= 2.0
-        points = canonical_order(target, points, max_homography_rms)
+            if nearest_spacing(rough) < MIN_CIRCLE_SPACING_PX:
+                reasons.append('too small')
+                continue
+            refined = refine_circle_centres(image, rough, warm)
+        if not refined.valid.all():
+            reasons.append('fit failed')
+            continue
+        points = canonical_order(target, refined.points, max_homography_rms)
         rms = homography_rms(target, points)
-        if rms <= max_homography_rms:
-            found.append(Detection(points=points, warm_features=warm, homography_rms=rms))
+        if rms > max_homography_rms:
+            reasons.append('not planar')
+            continue
+        found.append(Detection(points=points, warm_features=warm, homography_rms=rms))
     if not found:
-        return None
-    return min(found, key=lambda d: d.homography_rms)
+        return None, (reasons[0] if reasons else 'not found')
+    return min(found, key=lambda d: d.homography_rms), None
+
+
+def detect_target(image, target, max_homography_rms=0.5):
+    """Return the target's Detection in one raw image, or None (``find_target`` says why)."""
+    return find_target(image, target, max_homography_rms)[0]
+
+
+def nearest_spacing(points):
+    """Median distance from each point to its nearest neighbour, pixels."""
+    points = np.asarray(points, dtype=np.float64)
+    distance = np.linalg.norm(points[:, None] - points[None], axis=2)
+    np.fill_diagonal(distance, np.inf)
+    return float(np.median(distance.min(axis=1)))

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
-                                               detect_target, to_u8)
+                                               find_target, REJECTIONS, to_u8)
 from st_stereo.core.camera_calibration import save_calibration
 from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
@@ -91,6 +91,7 @@ class Collector:
         self.names, self.left, self.right = [], [], []
         self.left_only, self.right_only = [], []
         self.counts = {'pairs': 0, 'both': 0, 'left_only': 0, 'right_only': 0, 'neither': 0}
+        self.rejected = {side: dict.fromkeys(REJECTIONS, 0) for side in ('left', 'right')}
         self.example = None
 
     def add(self, name, left, right):
@@ -106,7 +107,12 @@ class Collector:
             raise CalibrationInputError(f'{name}: images are {size[0]}x{size[1]}, earlier ones '
                                         f'{self.size[0]}x{self.size[1]}')
         self.counts['pairs'] += 1
-        found = detect_target(left, self.target), detect_target(right, self.target)
+        found = []
+        for side, image in (('left', left), ('right', right)):
+            detection, reason = find_target(image, self.target)
+            if reason:
+                self.rejected[side][reason] += 1
+            found.append(detection)
         if found[0] and found[1]:
             self.counts['both'] += 1
             self.names.append(name)
@@ -157,13 +163,15 @@ def tilts(result):
     return np.array(values)
 
 
-def report(result, cells, counts, size):
+def report(result, cells, collector):
     """Return the numbers of a calibration as a dict (JSON-ready)."""
+    size = collector.size
     left, right = result.calibrations(size)
     vertical = result.vertical_disparity
     angle = tilts(result)
     return {
-        'pairs': counts, 'views_used': result.views, 'image_size': list(size),
+        'pairs': collector.counts, 'rejected_images': collector.rejected,
+        'views_used': result.views, 'image_size': list(size),
         'rms_px': {'left': result.left.rms, 'right': result.right.rms,
                    'stereo': result.stereo_rms},
         'rectified_vertical_disparity_px': {'median': float(np.median(vertical)),
@@ -189,6 +197,11 @@ def report_text(numbers):
         f'pairs: {numbers["pairs"]["pairs"]}, target in both: {numbers["pairs"]["both"]}, '
         f'left only: {numbers["pairs"]["left_only"]}, right only: '
         f'{numbers["pairs"]["right_only"]}, neither: {numbers["pairs"]["neither"]}',
+    ] + [
+        f'{side} images without the target: ' + ', '.join(
+            f'{reason} {count}' for reason, count in numbers['rejected_images'][side].items())
+        for side in ('left', 'right')
+    ] + [
         f'RMS reprojection error: left {numbers["rms_px"]["left"]:.3f} px, right '
         f'{numbers["rms_px"]["right"]:.3f} px, stereo {numbers["rms_px"]["stereo"]:.3f} px',
         f'rectified vertical disparity of the target points: median {v["median"]:.3f} px, '
@@ -258,7 +271,7 @@ def main(args):
     left, right = result.calibrations(collector.size, (args.left_name, args.right_name))
     save_calibration(left, out / 'left.yaml')
     save_calibration(right, out / 'right.yaml')
-    numbers = report(result, cells, collector.counts, collector.size)
+    numbers = report(result, cells, collector)
     (out / 'calibration_report.json').write_text(json.dumps(numbers, indent=1))
     text = report_text(numbers)
     (out / 'calibration_report.txt').write_text(text + '\n')
