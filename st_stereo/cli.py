@@ -241,6 +241,12 @@ def command_eval_features(args):
     return 0
 
 
+def command_eval_calibration(args):
+    """Calibrate simulated sessions with known truth; ST on the rectified result."""
+    from st_stereo.tools import eval_calibration
+    return eval_calibration.main(args)
+
+
 def command_eval_pipeline(args):
     """Paper Table 2: ST vs ORB + KNN vs StereoSGBM in 3-D on simulated sequences."""
     from st_stereo.tools import eval_pipeline as ep
@@ -348,6 +354,23 @@ def build_parser():
     e.add_argument('--quiet', action='store_true')
     _add_config_option(e)
     e.set_defaults(handler=command_eval_pipeline)
+    e = eval_sub.add_parser('calibration', help='st-stereo calibrate on simulated sessions '
+                            'with known truth, and ST on the rectified result')
+    e.add_argument('--pairs', type=int, default=200, help='pairs per session (default 200)')
+    e.add_argument('--seed', type=int, default=0)
+    e.add_argument('--target', choices=('circles', 'acircles', 'chessboard'),
+                   help='one target instead of the default circles 5x7 10 cm and chessboard '
+                   '5x7 7 cm')
+    e.add_argument('--rows', type=int, default=5)
+    e.add_argument('--cols', type=int, default=7)
+    e.add_argument('--spacing', type=float, default=0.1, help='metres')
+    e.add_argument('--st-frames', type=int, default=6,
+                   help='frames of walk_across for the ST check (default 6)')
+    e.add_argument('--json', help='write the report as JSON')
+    e.add_argument('--markdown', help='write the tables as Markdown')
+    e.add_argument('--strict', action='store_true', help='exit 1 when a criterion is not met')
+    e.add_argument('--quiet', action='store_true')
+    e.set_defaults(handler=command_eval_calibration)
     e = eval_sub.add_parser('all', help='every evaluation: the paper-reproduction report')
     e.add_argument('--out', default='docs/results.md', help='Markdown report path (figures '
                    'and JSON go to results/ beside it)')

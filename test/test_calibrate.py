@@ -1,20 +1,43 @@
-"""st-stereo calibrate: target detection at 80x60, stereo calibration, YAML out, bad input."""
+"""
+st-stereo calibrate: target detection at 80x60, stereo calibration, YAML out, bad input.
 
-import cv2
+The sessions are rendered through the realistic simulated rig (barrel distortion, a rotated
+right camera with a 0.6 % longer focal length, Lepton blur and noise), so every recovered
+number is checked against the truth it was rendered with.
+"""
+
+import json
+import os
+import time
+
 import numpy as np
 import pytest
-
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
 from st_stereo.cli import main
 from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
-                                               detect_target)
+                                               detect_target, find_target)
 from st_stereo.core.camera_calibration import load_calibration
 from st_stereo.core.rectification import StereoRectifier
+from st_stereo.nodes.conversions import msg_to_image
+from st_stereo.nodes.driver_node import DriverNode
+from st_stereo.nodes.rectifier_node import RectifierNode
+from st_stereo.sim.recording import write_pairs_bag
+from st_stereo.sim.render import render_temperature
 from st_stereo.sim.rig import realistic_rig
-from st_stereo.sim.targets import render_calibration_pairs
+from st_stereo.sim.sensor import LeptonSensor, SensorModel
+from st_stereo.sim.targets import calibration_scene, render_calibration_pairs, target_poses
 from st_stereo.tools.calibrate import calibrate, Collector
 
-CIRCLES = CalibrationTarget('circles', 4, 5, 0.1)
-CHESSBOARD = CalibrationTarget('chessboard', 4, 5, 0.09)
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+CIRCLES = CalibrationTarget('circles', 5, 7, 0.1)
+CHESSBOARD = CalibrationTarget('chessboard', 5, 7, 0.09)
+TARGET_ARGS = ['--target', 'circles', '--rows', '5', '--cols', '7', '--spacing', '0.1']
 
 
 def test_target_object_points_follow_opencv_conventions():
@@ -22,7 +45,7 @@ def test_target_object_points_follow_opencv_conventions():
     assert points.shape == (12, 3)
     # Asymmetric: odd rows are offset by half the spacing, rows are half a spacing apart.
     np.testing.assert_allclose(points[:4, :2], [[0, 0], [0.1, 0], [0.2, 0], [0.05, 0.05]])
-    assert CHESSBOARD.pattern_size == (5, 4)
+    assert CHESSBOARD.pattern_size == (7, 5)
     for bad, message in ((('hexagons', 4, 5, 0.1), 'kind must be one of'),
                          (('circles', 4, 4, 0.1), 'no defined orientation'),
                          (('chessboard', 1, 5, 0.1), 'at least 2 x 2'),
@@ -34,62 +57,82 @@ def test_target_object_points_follow_opencv_conventions():
 @pytest.mark.parametrize('target,warm', [(CIRCLES, True), (CIRCLES, False),
                                          (CHESSBOARD, True)],
                          ids=['warm-dots', 'cold-holes', 'chessboard'])
-def test_targets_are_found_to_a_fraction_of_a_pixel_at_80x60(target, warm):
+def test_targets_are_found_to_a_few_hundredths_of_a_pixel_at_80x60(target, warm):
     rig = realistic_rig()
-    pairs, poses = render_calibration_pairs(rig, target, 8, seed=4, warm_features=warm,
+    pairs, poses = render_calibration_pairs(rig, target, 10, seed=4, warm_features=warm,
                                             supersample=4)
-    left_camera = rig.cameras()[0]
     errors, found = [], 0
-    for (left, _), pose in zip(pairs, poses):
-        detection = detect_target(left, target)
-        if detection is None:
-            continue
-        found += 1
-        if target.kind != 'chessboard':     # an inverted chessboard is still a chessboard
-            assert detection.warm_features == warm        # polarity found automatically
-        truth = left_camera.project(pose[0] + target.object_points().astype(float) @ pose[1].T)
-        errors.append(np.linalg.norm(detection.points - truth, axis=1))
-    assert found >= 4
+    for pair, (origin, rotation) in zip(pairs, poses):
+        for image, camera in zip(pair, rig.cameras()):
+            detection = detect_target(image, target)
+            if detection is None:
+                continue
+            found += 1
+            if target.kind != 'chessboard':     # an inverted chessboard is still a chessboard
+                assert detection.warm_features == warm        # polarity found automatically
+            truth = camera.project(origin + target.object_points().astype(float) @ rotation.T)
+            errors.append(np.linalg.norm(detection.points - truth, axis=1))
+    assert found >= 8
     errors = np.concatenate(errors)
-    assert np.median(errors) < 0.15
-    assert errors.max() < 0.6
+    # The true projection of a circle's centre is not its blob's centre under perspective;
+    # the difference (<= 0.05 px here) is part of this error.
+    assert np.median(errors) < 0.05
+    assert np.percentile(errors, 95) < 0.12
+    assert errors.max() < 0.3
+
+
+def _render_one(rig, target, pose):
+    sensor = LeptonSensor(SensorModel(seed=3, ffc_period_s=0.0), (rig.height, rig.width))
+    return sensor.frame(render_temperature(calibration_scene(target, pose), rig.cameras()[0], 3),
+                        0.0)
+
+
+def test_rejected_images_say_why():
+    rig = realistic_rig()
+    flat = np.full((60, 80), 8000, np.uint16)
+    assert find_target(flat, CIRCLES) == (None, 'not found')
+    # 3.2 m away the circles are ~2.6 px apart: blobs merge, refused as too small.
+    far = target_poses(rig, CIRCLES, 1, seed=2, distance=(3.2, 3.3), max_tilt_deg=5.0)[0]
+    assert find_target(_render_one(rig, CIRCLES, far), CIRCLES) == (None, 'too small')
+    near = target_poses(rig, CIRCLES, 1, seed=2, distance=(1.2, 1.3), max_tilt_deg=5.0)[0]
+    detection, reason = find_target(_render_one(rig, CIRCLES, near), CIRCLES)
+    assert reason is None and detection.points.shape == (35, 2)
 
 
 @pytest.fixture(scope='module')
-def circle_calibration(tmp_path_factory):
+def circle_session(tmp_path_factory):
+    """Record a 60-pair session as a rosbag2 and calibrate it with ``calibrate --bag``."""
     rig = realistic_rig()
     pairs, _ = render_calibration_pairs(rig, CIRCLES, 60, seed=1, supersample=4)
     out = tmp_path_factory.mktemp('calibration')
-    for side in ('left', 'right'):
-        (out / side).mkdir()
-    for index, pair in enumerate(pairs):
-        for side, image in zip(('left', 'right'), pair):
-            cv2.imwrite(str(out / side / f'{index:03d}.png'), image)
-    code = main(['calibrate', '--images', str(out), '--target', 'circles', '--rows', '4',
-                 '--cols', '5', '--spacing', '0.1', '--out', str(out / 'result'), '--quiet'])
+    write_pairs_bag(pairs, out / 'bag')
+    code = main(['calibrate', '--bag', str(out / 'bag')] + TARGET_ARGS +
+                ['--out', str(out / 'result'), '--quiet'])
     assert code == 0
     return rig, out, pairs
 
 
-def test_calibration_recovers_the_rig(circle_calibration):
-    rig, out, _ = circle_calibration
-    import json
+def test_calibration_recovers_the_rig(circle_session):
+    rig, out, _ = circle_session
     report = json.loads((out / 'result' / 'calibration_report.json').read_text())
+    assert report['pairs']['pairs'] == 60
     assert report['baseline_m'] == pytest.approx(rig.baseline_m, rel=0.02)
     assert report['rectified_vertical_disparity_px']['median'] <= 0.1
-    assert report['rms_px']['left'] < 0.2 and report['rms_px']['right'] < 0.2
-    truth = rig.cameras()
-    for side, camera in zip(('left', 'right'), truth):
+    assert report['rms_px']['left'] < 0.1 and report['rms_px']['right'] < 0.1
+    for side, camera in zip(('left', 'right'), rig.cameras()):
         k = camera.camera_matrix
-        # Focal lengths within 2 % (the issue asks for 1 %: see the closing note).
-        assert report[side]['fx'] == pytest.approx(k[0, 0], rel=0.02)
-        assert report[side]['fy'] == pytest.approx(k[1, 1], rel=0.02)
+        for name, (i, j) in (('fx', (0, 0)), ('fy', (1, 1)), ('cx', (0, 2)), ('cy', (1, 2))):
+            assert report[side][name] == pytest.approx(k[i, j], rel=0.01), (side, name)
+    # Every image is accounted for: found, or rejected with a reason.
+    for side in ('left', 'right'):
+        found = report['pairs']['both'] + report['pairs'][f'{side}_only']
+        assert found + sum(report['rejected_images'][side].values()) == 60
     assert (out / 'result' / 'calibration.png').stat().st_size > 1000
     assert 'coverage' in (out / 'result' / 'calibration_report.txt').read_text()
 
 
-def test_round_trip_yaml_to_rectifier_puts_target_rows_on_equal_image_rows(circle_calibration):
-    rig, out, pairs = circle_calibration
+def test_calibrated_yaml_rectifies_target_rows_onto_equal_rows(circle_session):
+    rig, out, pairs = circle_session
     left = load_calibration(out / 'result' / 'left.yaml')
     right = load_calibration(out / 'result' / 'right.yaml')
     assert left.distortion_model == 'plumb_bob' and len(left.distortion) == 5
@@ -97,40 +140,96 @@ def test_round_trip_yaml_to_rectifier_puts_target_rows_on_equal_image_rows(circl
     rectifier = StereoRectifier(left, right)
     differences = []
     for raw_left, raw_right in pairs[:30]:
-        rect_left, rect_right = rectifier.rectify(raw_left, raw_right)
-        found = [detect_target(image, CIRCLES) for image in (rect_left, rect_right)]
+        found = [detect_target(image, CIRCLES)
+                 for image in rectifier.rectify(raw_left, raw_right)]
         if found[0] and found[1]:
             differences.append(found[0].points[:, 1] - found[1].points[:, 1])
     assert len(differences) >= 3
-    assert np.median(np.abs(np.concatenate(differences))) < 0.15
+    assert np.median(np.abs(np.concatenate(differences))) < 0.1
+
+
+class RectifiedPairs(Node):
+    def __init__(self, context):
+        super().__init__('rectified_pairs', context=context, namespace='stereo')
+        self.images = {'left': {}, 'right': {}}
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        for side in ('left', 'right'):
+            self.create_subscription(
+                Image, f'{side}/image_rect',
+                lambda msg, side=side: self.images[side].__setitem__(
+                    (msg.header.stamp.sec, msg.header.stamp.nanosec),
+                    msg_to_image(msg, 'mono16')), qos)
+
+
+@pytest.mark.timeout(180)
+def test_round_trip_through_the_driver_and_rectifier_nodes(circle_session):
+    """Calibrate -> YAML -> driver (bag source) loads it -> rectifier node -> equal rows."""
+    _, out, _ = circle_session
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    urls = [Parameter(f'{side}_camera_info_url', value=f'file://{out}/result/{side}.yaml')
+            for side in ('left', 'right')]
+    nodes = [RectifiedPairs(context), RectifierNode(context=context)]
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 1.0           # discovery before the first pair
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        driver = DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(out / 'bag'))] + urls)
+        nodes.append(driver)
+        executor.add_node(driver)
+        deadline = time.monotonic() + 60.0
+        while not driver.finished.is_set() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        deadline = time.monotonic() + 1.5
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        received = nodes[0].images
+        stamps = sorted(set(received['left']) & set(received['right']))
+        assert driver.published == 60 and len(stamps) >= 55
+        differences = []
+        for stamp in stamps:
+            found = [detect_target(received[side][stamp], CIRCLES) for side in ('left', 'right')]
+            if found[0] and found[1]:
+                differences.append(found[0].points[:, 1] - found[1].points[:, 1])
+        assert len(differences) >= 5
+        assert np.median(np.abs(np.concatenate(differences))) < 0.1
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 def test_bad_input_is_refused_with_the_reason(tmp_path, capsys):
     empty = tmp_path / 'empty'
     empty.mkdir()
-    assert main(['calibrate', '--images', str(empty), '--target', 'circles', '--rows', '4',
-                 '--cols', '5', '--spacing', '0.1', '--out', str(tmp_path / 'o')]) == 2
+    assert main(['calibrate', '--images', str(empty)] + TARGET_ARGS +
+                ['--out', str(tmp_path / 'o')]) == 2
     assert 'no pairs' in capsys.readouterr().err
     flat = np.full((60, 80), 8000, np.uint16)
     collector = Collector(CIRCLES)
     for _ in range(3):
         collector.add('flat', flat, flat)
+    assert collector.rejected['left']['not found'] == 3
     with pytest.raises(CalibrationInputError, match='target never found in 3 pairs'):
         calibrate(collector)
     with pytest.raises(CalibrationInputError, match='left is 80x60 but right is 160x120'):
         collector.add('mixed', flat, np.zeros((120, 160), np.uint16))
     with pytest.raises(CalibrationInputError, match='earlier ones 80x60'):
         collector.add('bigger', np.zeros((120, 160)), np.zeros((120, 160)))
-    # The target seen in one corner only: not enough coverage to calibrate.
+    # The target seen in one place only: not enough coverage to calibrate.
     rig = realistic_rig()
-    pairs, _ = render_calibration_pairs(rig, CIRCLES, 6, seed=9, supersample=3)
-    seen = next(pair for pair in pairs if detect_target(pair[0], CIRCLES) is not None)
+    pose = target_poses(rig, CIRCLES, 1, seed=2, distance=(2.0, 2.1), max_tilt_deg=5.0)[0]
+    seen = _render_one(rig, CIRCLES, pose)
     corner = Collector(CIRCLES)
     for _ in range(4):
-        corner.add('same', *seen)
+        corner.add('same', seen, seen)
     with pytest.raises(CalibrationInputError, match='too little coverage'):
         calibrate(corner)
     missing = tmp_path / 'nobag'
-    assert main(['calibrate', '--bag', str(missing), '--target', 'circles', '--rows', '4',
-                 '--cols', '5', '--spacing', '0.1', '--out', str(tmp_path / 'o')]) == 2
+    assert main(['calibrate', '--bag', str(missing)] + TARGET_ARGS +
+                ['--out', str(tmp_path / 'o')]) == 2
     assert 'no such bag' in capsys.readouterr().err

@@ -146,7 +146,9 @@ class Detection:
     homography_rms: float
 
 
-MIN_CIRCLE_SPACING_PX = 3.5
+# Below these distances between neighbouring points (pixels) circles merge and corners'
+# windows overlap the next corners: located points err by up to 0.3-0.5 px (measured).
+MIN_SPACING_PX = {'circles': 3.5, 'acircles': 3.5, 'chessboard': 3.0}
 REJECTIONS = ('not found', 'too small', 'fit failed', 'not planar')
 
 
@@ -157,10 +159,9 @@ def find_target(image, target, max_homography_rms=0.5):
     Both polarities are tried. OpenCV's detectors on the upsampled image give rough positions
     and the grid order; each point is then fitted on the original pixels
     (``st_stereo.core.target_refinement``). Reasons, in ``REJECTIONS``: ``not found`` (no full
-    grid), ``too small`` (circles nearer than ``MIN_CIRCLE_SPACING_PX``: below that, blobs
-    merge and their fitted centres err by up to 0.3 px), ``fit failed`` (a point did not fit
-    its model), ``not planar`` (points off the target's homography by more than
-    ``max_homography_rms``: a partial or mis-ordered grid).
+    grid), ``too small`` (points nearer to each other than ``MIN_SPACING_PX``), ``fit failed``
+    (a point did not fit its model), ``not planar`` (points off the target's homography by
+    more than ``max_homography_rms``: a partial or mis-ordered grid).
     """
     base = to_u8(image)
     found, reasons = [], []
@@ -172,8 +173,11 @@ def find_target(image, target, max_homography_rms=0.5):
                 flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
             if not ok:
                 continue
-            refined = refine_chessboard_corners(image, from_upsampled(corners.reshape(-1, 2)),
-                                                target.pattern_size)
+            rough = from_upsampled(corners.reshape(-1, 2))
+            if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
+                reasons.append('too small')
+                continue
+            refined = refine_chessboard_corners(image, rough, target.pattern_size)
         else:
             flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if target.kind == 'acircles'
                      else cv2.CALIB_CB_SYMMETRIC_GRID)
@@ -183,7 +187,7 @@ def find_target(image, target, max_homography_rms=0.5):
             if not ok:
                 continue
             rough = from_upsampled(centres.reshape(-1, 2))
-            if nearest_spacing(rough) < MIN_CIRCLE_SPACING_PX:
+            if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
                 reasons.append('too small')
                 continue
             refined = refine_circle_centres(image, rough, warm)

@@ -32,12 +32,13 @@ import dataclasses
 import numpy as np
 from scipy.special import ndtr
 
-SUBSAMPLES = 4
+SUBSAMPLES = 3
 _OFFSETS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5
 SUBSAMPLE_DX, SUBSAMPLE_DY = (a.ravel() for a in np.meshgrid(_OFFSETS, _OFFSETS))
 BLOB_STEPS = np.array([1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-3, 1e-3])
 SADDLE_STEPS = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-4, 1e-3, 1e-3])
 START_EDGE_WIDTH_PX = 0.6
+CENTRE_TOLERANCE_PX = 1e-4
 # Bounds: edge width 0.2-2.5 px, blob radius 0.5-8 px, elongation up to 3:1 (tilted 70 deg).
 _NO_BOUND = np.inf
 BLOB_BOUNDS = np.array([
@@ -108,7 +109,7 @@ def blurred_saddle(params, xs, ys):
 
 
 def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=1.5,
-              iterations=40, tolerance=1e-10):
+              iterations=40, tolerance=1e-7):
     """
     Levenberg-Marquardt fit of ``model`` to every row of ``data`` at once.
 
@@ -116,8 +117,10 @@ def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=
     data, weights`` (n, m) the pixel centres, values and weights of each feature's window,
     ``steps`` (k,) the relative forward-difference steps, ``bounds`` (2, k) or (2, n, k) the
     lowest and highest values of each parameter (the centre's are ignored: it is kept within
-    ``max_shift_px`` of its start). Returns the fitted parameters and the weighted residual rms
-    per feature.
+    ``max_shift_px`` of its start). A feature stops when a step lowers its cost by less than
+    ``tolerance`` (relative) and moves its centre by less than ``CENTRE_TOLERANCE_PX``, or when
+    its damping has grown past any useful step. Returns the fitted
+    parameters and the weighted residual rms per feature.
     """
     params = np.array(params, dtype=np.float64)
     lower = np.broadcast_to(np.asarray(bounds[0], dtype=np.float64), params.shape).copy()
@@ -128,38 +131,52 @@ def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=
     damping = np.full(count, 1e-2)
     identity = np.eye(size)
 
-    def residuals(p):
-        return (model(p, xs, ys) - data) * weights
-    residual = residuals(params)
+    def residuals(p, rows):
+        return (model(p, xs[rows], ys[rows]) - data[rows]) * weights[rows]
+    residual = residuals(params, slice(None))
     cost = np.einsum('nm,nm->n', residual, residual)
+    active = np.arange(count)
     for _ in range(iterations):
-        jacobian = np.empty(residual.shape + (size,))
+        if not len(active):
+            break
+        p, r = params[active], residual[active]
+        jacobian = np.empty(r.shape + (size,))
         for i in range(size):
-            shifted = params.copy()
-            shifted[:, i] += steps[i] * np.maximum(1.0, np.abs(params[:, i]))
-            jacobian[:, :, i] = (residuals(shifted) - residual) / \
-                (shifted[:, i] - params[:, i])[:, None]
+            shifted = p.copy()
+            shifted[:, i] += steps[i] * np.maximum(1.0, np.abs(p[:, i]))
+            jacobian[:, :, i] = (residuals(shifted, active) - r) / \
+                (shifted[:, i] - p[:, i])[:, None]
         normal = np.einsum('nmi,nmj->nij', jacobian, jacobian)
-        gradient = np.einsum('nmi,nm->ni', jacobian, residual)
+        gradient = np.einsum('nmi,nm->ni', jacobian, r)
         scale = np.einsum('nii->ni', normal) + 1e-12
-        damped = normal + damping[:, None, None] * scale[:, :, None] * identity
-        try:
-            delta = -np.linalg.solve(damped, gradient[:, :, None])[:, :, 0]
-        except np.linalg.LinAlgError:
-            break
-        trial = np.clip(params + np.where(np.isfinite(delta), delta, 0.0), lower, upper)
-        trial_residual = residuals(trial)
+        damped = normal + damping[active, None, None] * scale[:, :, None] * identity
+        delta = -_solve(damped, gradient)
+        trial = np.clip(p + np.where(np.isfinite(delta), delta, 0.0), lower[active],
+                        upper[active])
+        trial_residual = residuals(trial, active)
         trial_cost = np.einsum('nm,nm->n', trial_residual, trial_residual)
-        better = trial_cost < cost
-        gain = np.where(better, cost - trial_cost, 0.0)
-        params[better] = trial[better]
-        residual[better] = trial_residual[better]
-        cost = np.where(better, trial_cost, cost)
-        damping = np.clip(np.where(better, damping * 0.3, damping * 10.0), 1e-9, 1e9)
-        if np.all(gain <= tolerance * np.maximum(cost, 1e-30)) and np.all(damping < 1e3):
-            break
+        better = trial_cost < cost[active]
+        gain = np.where(better, cost[active] - trial_cost, 0.0)
+        improved = active[better]
+        params[improved] = trial[better]
+        residual[improved] = trial_residual[better]
+        cost[improved] = trial_cost[better]
+        damping[active] = np.clip(np.where(better, damping[active] * 0.3,
+                                           damping[active] * 10.0), 1e-9, 1e9)
+        moved = np.abs(trial[:, :2] - p[:, :2]).max(axis=1)
+        done = (better & (gain <= tolerance * np.maximum(cost[active], 1e-30)) &
+                (moved < CENTRE_TOLERANCE_PX)) | (damping[active] >= 1e6)
+        active = active[~done]
     used = np.maximum(weights.astype(bool).sum(axis=1), 1)
     return params, np.sqrt(cost / used)
+
+
+def _solve(matrices, vectors):
+    """Solve each (k, k) system; if one is singular, all get least-squares solutions."""
+    try:
+        return np.linalg.solve(matrices, vectors[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        return np.stack([np.linalg.lstsq(m, v, rcond=None)[0] for m, v in zip(matrices, vectors)])
 
 
 def feature_windows(centres, half, shape):

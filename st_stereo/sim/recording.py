@@ -121,6 +121,34 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
             'path': str(out_dir)}
 
 
+def write_pairs_bag(pairs, bag_dir, namespace='/stereo', fps=8.7, overwrite=False):
+    """
+    Write raw pairs (uint16) as a rosbag2 of ``<namespace>/{left,right}/image_raw`` only.
+
+    What a user records while moving a calibration target in front of the rig (no camera_info:
+    the rig is not calibrated yet). MCAP, metadata version 9; stamps ``1 / fps`` apart.
+    """
+    bag_dir = pathlib.Path(bag_dir)
+    if bag_dir.exists():
+        if not overwrite:
+            raise FileExistsError(f'{bag_dir} exists (pass --overwrite to replace it)')
+        shutil.rmtree(bag_dir)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    namespace = namespace.rstrip('/')
+    with Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = [writer.add_connection(f'{namespace}/{side}/image_raw',
+                                             'sensor_msgs/msg/Image', typestore=typestore)
+                       for side in ('left', 'right')]
+        builders = [_messages(typestore, f'stereo_{side}_optical_frame')[0]
+                    for side in ('left', 'right')]
+        for index, pair in enumerate(pairs):
+            stamp_ns = START_NS + int(round(index / fps * 1e9))
+            for connection, image, pixels in zip(connections, builders, pair):
+                msg = image(pixels, stamp_ns)
+                writer.write(connection, stamp_ns, typestore.serialize_cdr(msg, msg.__msgtype__))
+    return bag_dir
+
+
 def recording_readme(spec, namespace):
     """Return the README text of a recording directory."""
     rig = spec.rig

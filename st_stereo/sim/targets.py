@@ -2,9 +2,9 @@
 Heated calibration targets in front of the simulated rig (for ``st-stereo calibrate``).
 
 A target is a flat plate with an analytic temperature pattern (warm dots on a cold plate, cold
-holes in a warm plate, or a heated chessboard), posed in front of the rig at 1.2-2.4 m with
-tilts up to about 35 degrees and spread over the field of view, rendered through the same rig,
-optics and Lepton sensor model as the sequences.
+holes in a warm plate, or a heated chessboard), posed in front of the rig at 0.75-2.2 m with
+tilts up to 45 degrees about each axis and spread over the field of view, rendered through the
+same rig, optics and Lepton sensor model as the sequences.
 """
 
 import dataclasses
@@ -144,12 +144,15 @@ def calibration_scene(target, pose, warm_features=True):
 
 
 def render_calibration_pairs(rig, target, count, seed=0, warm_features=True, supersample=6,
-                             noise=True, stereo_share=0.4, stereo_distance=(1.6, 2.8)):
+                             noise=True, stereo_share=0.4, stereo_distance=(1.3, 2.2),
+                             mono_distance=(0.75, 1.5)):
     """
     Render ``count`` raw pairs (uint16) of the target at random poses; also the poses.
 
     ``stereo_share`` of the pairs see the target in both cameras (farther away, where the
-    fields of view overlap); the others sweep it close over each camera's whole field.
+    fields of view overlap); the others sweep it close over each camera's whole field, as a
+    user would to fill the image with the target at strong tilts (what pins down the principal
+    point at 80x60). Distances in metres.
     """
     shape = (rig.height, rig.width)
     sensors = [LeptonSensor(SensorModel(seed=seed * 2 + 1, ffc_period_s=0.0), shape),
@@ -158,7 +161,7 @@ def render_calibration_pairs(rig, target, count, seed=0, warm_features=True, sup
     pairs = []
     stereo = int(round(count * stereo_share))
     poses = target_poses(rig, target, stereo, seed, distance=stereo_distance, both=True) + \
-        target_poses(rig, target, count - stereo, seed + 1000)
+        target_poses(rig, target, count - stereo, seed + 1000, distance=mono_distance)
     for index, pose in enumerate(poses):
         scene = calibration_scene(target, pose, warm_features)
         frames = [sensor.frame(render_temperature(scene, camera, supersample), index / 8.7,

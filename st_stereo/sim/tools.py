@@ -94,15 +94,21 @@ def command_calibration(args):
     pairs, _ = render_calibration_pairs(rig, target, args.pairs, seed=args.seed,
                                         warm_features=not args.cold_features)
     out = pathlib.Path(args.out)
-    for side in ('left', 'right'):
-        (out / side).mkdir(parents=True, exist_ok=True)
-    for index, pair in enumerate(pairs):
-        for side, image in zip(('left', 'right'), pair):
-            if not cv2.imwrite(str(out / side / f'{index:03d}.png'), image):
-                raise ValueError(f'{out / side}: could not write the images')
+    out.mkdir(parents=True, exist_ok=True)
+    if args.bag:
+        from st_stereo.sim.recording import write_pairs_bag
+        written = f'the bag {write_pairs_bag(pairs, out / "bag", overwrite=args.overwrite)}'
+    else:
+        for side in ('left', 'right'):
+            (out / side).mkdir(parents=True, exist_ok=True)
+        for index, pair in enumerate(pairs):
+            for side, image in zip(('left', 'right'), pair):
+                if not cv2.imwrite(str(out / side / f'{index:03d}.png'), image):
+                    raise ValueError(f'{out / side}: could not write the images')
+        written = f'{out}/left, {out}/right'
     for side, calibration in zip(('left', 'right'), rig.calibrations()):
         save_calibration(calibration, out / f'true_{side}.yaml')
-    print(f'wrote {len(pairs)} pairs of a {args.target} target to {out}/left, {out}/right and '
+    print(f'wrote {len(pairs)} pairs of a {args.target} target to {written} and '
           f'the true calibration to {out}/true_left.yaml, true_right.yaml; baseline '
           f'{rig.baseline_m:.4f} m')
     return 0
@@ -131,10 +137,13 @@ def add_parser(sub):
     s.set_defaults(handler=command_render)
     s = sim.add_parser('calibration', help='render pairs of a heated calibration target')
     s.add_argument('--target', default='circles', choices=('circles', 'acircles', 'chessboard'))
-    s.add_argument('--rows', type=int, default=4)
-    s.add_argument('--cols', type=int, default=5)
+    s.add_argument('--rows', type=int, default=5)
+    s.add_argument('--cols', type=int, default=7)
     s.add_argument('--spacing', type=float, default=0.1, help='metres')
-    s.add_argument('--pairs', type=int, default=80)
+    s.add_argument('--pairs', type=int, default=200)
+    s.add_argument('--bag', action='store_true',
+                   help='write OUT/bag (rosbag2, raw image topics) instead of PNG pairs')
+    s.add_argument('--overwrite', action='store_true', help='replace an existing OUT/bag')
     s.add_argument('--cold-features', action='store_true',
                    help='cold circles / holes in a warm plate (default: warm on cold)')
     s.add_argument('--seed', type=int, default=0)

@@ -95,7 +95,7 @@ class Collector:
         self.example = None
 
     def add(self, name, left, right):
-        """Detect the target in one pair."""
+        """Detect the target in one pair; return the left and right Detection (or None)."""
         left, right = np.asarray(left), np.asarray(right)
         if left.shape != right.shape:
             raise CalibrationInputError(f'{name}: left is {left.shape[1]}x{left.shape[0]} but '
@@ -128,6 +128,7 @@ class Collector:
             self.right_only.append(found[1].points)
         else:
             self.counts['neither'] += 1
+        return tuple(found)
 
 
 def calibrate(collector, min_coverage=MIN_COVERED_CELLS):
