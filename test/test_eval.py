@@ -77,3 +77,34 @@ def test_eval_pipeline_command_prints_the_table(capsys, tmp_path):
     out = capsys.readouterr().out
     assert '| walk_across | StereoSGBM |' in out
     assert plot.stat().st_size > 1000
+
+
+def test_calibration_check_judges_st_points_by_ray_casting_in_the_raw_camera():
+    from st_stereo.core.calibration_target import CalibrationTarget
+    from st_stereo.sim.rig import realistic_rig
+    from st_stereo.sim.targets import calibration_scene, target_poses
+    from st_stereo.tools.eval_calibration import range_errors
+    rig = realistic_rig()
+    target = CalibrationTarget('circles', 5, 7, 0.1)
+    scene = calibration_scene(target, target_poses(rig, target, 1, seed=3, both=True)[0])
+    pixels = np.array([[x, y] for y in range(10, 50, 7) for x in range(15, 65, 9)], float)
+    # Points as a perfect matcher would report them: the true surface along each rectified
+    # pixel's line of sight, in the rectified left frame.
+    origin, directions = rig.rectified_rays(pixels)
+    hits = scene.cast(origin, directions, with_temperature=False)
+    points = rig.to_rectified_left(hits.points)
+    result = type('Result', (), {'x_left': pixels[:, 0], 'y': pixels[:, 1], 'points': points,
+                                 '__len__': lambda self: len(pixels)})()
+    left_calibration = rig.calibrations()[0]
+    errors, ranges, visible, signed = range_errors(result, left_calibration, rig.cameras(),
+                                                   scene)
+    assert np.allclose(errors, 0.0) and np.allclose(signed, 0.0, atol=1e-9)
+    np.testing.assert_allclose(ranges, np.linalg.norm(points, axis=1), rtol=1e-9)
+    # The plate hides part of the wall behind it from the right camera: occluded, not wrong.
+    assert 0.5 < visible.mean() < 1.0
+    # 3 % too far: the error is the excess beyond the pixel's range span, ~3 % of the range.
+    result.points = points * 1.03
+    errors, _, _, signed = range_errors(result, left_calibration, rig.cameras(), scene)
+    np.testing.assert_allclose(signed, 0.03, atol=1e-9)
+    # (A pixel straddling the plate's edge spans wall and plate: 3 % may still be inside.)
+    assert np.median(errors / ranges) > 0.015 and np.all(errors <= 0.03 * ranges + 1e-9)

@@ -18,6 +18,8 @@ from st_stereo.core.camera_calibration import CameraCalibration
 
 MONO_FLAGS = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 COVERAGE_GRID = (4, 3)          # columns x rows of image cells for the coverage report
+OUTLIER_VIEW_FACTOR = 3.0       # a view reprojecting 3x worse than the median view is dropped
+OUTLIER_VIEW_FLOOR_PX = 0.1     # ... unless it is within 0.1 px RMS anyway
 
 
 @dataclasses.dataclass
@@ -44,6 +46,7 @@ class StereoResult:
     rectification: tuple          # R1, R2, P1, P2
     vertical_disparity: np.ndarray
     views: int
+    dropped_views: dict = dataclasses.field(default_factory=dict)   # side -> count
 
     @property
     def baseline_m(self):
@@ -102,22 +105,48 @@ def rectified_vertical_disparity(left_points, right_points, left, right, rectifi
     return np.concatenate(values) if values else np.zeros(0)
 
 
+def outlier_views(per_view_rms, factor=OUTLIER_VIEW_FACTOR, floor_px=OUTLIER_VIEW_FLOOR_PX):
+    """Flag the views whose reprojection RMS exceeds ``factor`` x the median and ``floor_px``."""
+    per_view_rms = np.asarray(per_view_rms, dtype=np.float64)
+    limit = max(factor * float(np.median(per_view_rms)), floor_px)
+    return per_view_rms > limit
+
+
 def calibrate_stereo(target, left_points, right_points, size, left_only=(), right_only=()):
     """
     Calibrate both cameras, then the rig, then rectify.
 
     ``left_points`` / ``right_points`` are the detections of the pairs where both cameras saw the
     target (same order); ``left_only`` / ``right_only`` add views one camera saw alone to that
-    camera's intrinsics.
+    camera's intrinsics. Views that reproject much worse than the others after a first
+    calibration (``outlier_views``: a mis-located point) are dropped, counted in
+    ``dropped_views``, and the cameras calibrated again.
     """
     if len(left_points) < 3:
         raise CalibrationInputError(f'need at least 3 pairs with the target in both images, '
                                     f'got {len(left_points)}')
     model = target.object_points()
-    left = calibrate_mono([model] * (len(left_points) + len(left_only)),
-                          list(left_points) + list(left_only), size)
-    right = calibrate_mono([model] * (len(right_points) + len(right_only)),
-                           list(right_points) + list(right_only), size)
+    left_points, right_points = list(left_points), list(right_points)
+    left_only, right_only = list(left_only), list(right_only)
+    dropped = {'left': 0, 'right': 0}
+    for attempt in range(2):
+        left = calibrate_mono([model] * (len(left_points) + len(left_only)),
+                              left_points + left_only, size)
+        right = calibrate_mono([model] * (len(right_points) + len(right_only)),
+                               right_points + right_only, size)
+        flags = [outlier_views(mono.per_view_rms) for mono in (left, right)]
+        if attempt or not (flags[0].any() or flags[1].any()):
+            break
+        pairs = len(left_points)
+        bad_pair = flags[0][:pairs] | flags[1][:pairs]
+        if (~bad_pair).sum() < 3:
+            break
+        dropped['left'] += int(flags[0].sum())
+        dropped['right'] += int(flags[1].sum())
+        left_only = [p for p, bad in zip(left_only, flags[0][pairs:]) if not bad]
+        right_only = [p for p, bad in zip(right_only, flags[1][pairs:]) if not bad]
+        left_points = [p for p, bad in zip(left_points, bad_pair) if not bad]
+        right_points = [p for p, bad in zip(right_points, bad_pair) if not bad]
     objects = [model.reshape(-1, 1, 3)] * len(left_points)
     lp = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in left_points]
     rp = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in right_points]
@@ -134,4 +163,4 @@ def calibrate_stereo(target, left_points, right_points, size, left_only=(), righ
     return StereoResult(left=left, right=right, rotation=rotation,
                         translation=translation.ravel(), stereo_rms=float(rms),
                         rectification=rectification, vertical_disparity=vertical,
-                        views=len(left_points))
+                        views=len(left_points), dropped_views=dropped)

@@ -20,7 +20,8 @@ from st_stereo.core.calibration_target import (CalibrationInputError, Calibratio
 from st_stereo.core.camera_calibration import save_calibration
 from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
-from st_stereo.core.stereo_calibration import calibrate_stereo, coverage
+from st_stereo.core.stereo_calibration import (calibrate_stereo, coverage,
+                                               OUTLIER_VIEW_FACTOR)
 from st_stereo.tools.bag_images import raw_image_messages
 
 IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
@@ -172,7 +173,8 @@ def report(result, cells, collector):
     angle = tilts(result)
     return {
         'pairs': collector.counts, 'rejected_images': collector.rejected,
-        'views_used': result.views, 'image_size': list(size),
+        'views_used': result.views, 'views_dropped_as_outliers': result.dropped_views,
+        'image_size': list(size),
         'rms_px': {'left': result.left.rms, 'right': result.right.rms,
                    'stereo': result.stereo_rms},
         'rectified_vertical_disparity_px': {'median': float(np.median(vertical)),
@@ -209,6 +211,10 @@ def report_text(numbers):
         f'p95 {v["p95"]:.3f} px ({v["points"]} points)',
         f'baseline: {numbers["baseline_m"]:.4f} m',
     ]
+    dropped = numbers['views_dropped_as_outliers']
+    lines.append(f'stereo views used: {numbers["views_used"]}; views dropped as outliers '
+                 f'(reprojection RMS > {OUTLIER_VIEW_FACTOR:g}x the median view): left '
+                 f'{dropped["left"]}, right {dropped["right"]}')
     for side in ('left', 'right'):
         c = numbers[side]
         lines.append(f'{side}: fx {c["fx"]:.3f} fy {c["fy"]:.3f} cx {c["cx"]:.3f} cy '
