@@ -78,3 +78,53 @@ def test_rectifier_rejects_wrong_sizes_and_swapped_cameras(people_80x60):
         rectifier.rectify(people_80x60[:30, :40], people_80x60)
     with pytest.raises(CalibrationError, match='P\\[0,3\\] must be -fx\\*B'):
         StereoRectifier(rig_calibration('left', 0.0), rig_calibration('right', 46.0))
+
+
+CAMERA_CALIBRATION_OUTPUT = """image_width: 80
+image_height: 60
+camera_name: narrow_stereo/left
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [83.52, 0.0, 39.71, 0.0, 83.61, 29.33, 0.0, 0.0, 1.0]
+distortion_model: {model}
+distortion_coefficients:
+  rows: 1
+  cols: {count}
+  data: [{coefficients}]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [0.9999, 0.0093, -0.0089, -0.0093, 0.9999, -0.0005, 0.0089, 0.0006, 0.9999]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [83.53, 0.0, 40.45, 0.0, 0.0, 83.53, 29.21, 0.0, 0.0, 0.0, 1.0, 0.0]
+"""
+
+
+@pytest.mark.parametrize('model, count', [('plumb_bob', 5), ('rational_polynomial', 8),
+                                          ('equidistant', 4)])
+def test_reads_what_camera_calibration_writes(tmp_path, model, count):
+    coefficients = [-0.12, 0.03, 0.001, -0.002, 0.0, 0.0, 0.0, 0.0][:count]
+    path = tmp_path / 'left.yaml'
+    path.write_text(CAMERA_CALIBRATION_OUTPUT.format(
+        model=model, count=count, coefficients=', '.join(map(str, coefficients))))
+    loaded = load_calibration(path)
+    assert (loaded.width, loaded.height, loaded.camera_name) == (80, 60, 'narrow_stereo/left')
+    assert loaded.distortion_model == model
+    np.testing.assert_allclose(loaded.distortion, coefficients)
+    # Row-major: K[0, 2] is cx, P[1, 2] is the rectified cy.
+    assert loaded.camera_matrix[0, 2] == 39.71 and loaded.camera_matrix[1, 1] == 83.61
+    assert loaded.projection.shape == (3, 4) and loaded.projection[1, 2] == 29.21
+    assert loaded.rectification[0, 1] == 0.0093
+    # Written back: the same keys in the same order, the same numbers.
+    save_calibration(loaded, tmp_path / 'again.yaml')
+    text = (tmp_path / 'again.yaml').read_text()
+    keys = [line.split(':')[0] for line in text.splitlines() if not line.startswith(' ')]
+    assert keys == ['image_width', 'image_height', 'camera_name', 'camera_matrix',
+                    'distortion_model', 'distortion_coefficients', 'rectification_matrix',
+                    'projection_matrix']
+    again = load_calibration(tmp_path / 'again.yaml')
+    for field in ('camera_matrix', 'distortion', 'rectification', 'projection'):
+        np.testing.assert_array_equal(getattr(again, field), getattr(loaded, field))
