@@ -233,3 +233,16 @@ def test_bad_input_is_refused_with_the_reason(tmp_path, capsys):
     assert main(['calibrate', '--bag', str(missing)] + TARGET_ARGS +
                 ['--out', str(tmp_path / 'o')]) == 2
     assert 'no such bag' in capsys.readouterr().err
+
+
+def test_sim_calibration_writes_a_bag_that_calibrate_reads(tmp_path, capsys):
+    from st_stereo.tools.calibrate import pairs_from_bag
+    out = tmp_path / 'session'
+    assert main(['sim', 'calibration', '--pairs', '3', '--bag', '--out', str(out)]) == 0
+    assert 'true calibration' in capsys.readouterr().out
+    pairs = list(pairs_from_bag(out / 'bag'))
+    assert len(pairs) == 3 and pairs[0][1].shape == (60, 80) and pairs[0][1].dtype == np.uint16
+    assert load_calibration(out / 'true_left.yaml').width == 80
+    # A second run refuses to overwrite the bag unless told to.
+    assert main(['sim', 'calibration', '--pairs', '3', '--bag', '--out', str(out)]) == 2
+    assert 'exists' in capsys.readouterr().err
