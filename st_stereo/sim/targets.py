@@ -115,7 +115,11 @@ def target_poses(rig, target, count, seed=0, distance=(0.9, 1.8), max_tilt_deg=4
     while len(poses) < count:
         attempts += 1
         if attempts > 500 * count:
-            raise RuntimeError('could not place the target in view; is it too large?')
+            width, height = x1 - x0, y1 - y0
+            raise ValueError(
+                f'could not place the {width:.2f} x {height:.2f} m target plate fully in view '
+                f'{"of both cameras " if both else ""}at {distance[0]:g}-{distance[1]:g} m '
+                f'({len(poses)} of {count} poses found): use a smaller target')
         aim = cameras[len(poses) % 2]
         z = rng.uniform(*distance)
         u = rng.uniform(0.05, 0.95) * rig.width
