@@ -6,11 +6,11 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import serialize_message
+from ros_helpers import new_context, spin_for, spin_until_finished
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
@@ -38,24 +38,6 @@ class Clouds(Node):
 
     def _on_cloud(self, msg):
         self.by_stamp[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = bytes(msg.data)
-
-
-def new_context():
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    return context, SingleThreadedExecutor(context=context)
-
-
-def spin_for(executor, seconds):
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.02)
-
-
-def spin_until_finished(executor, driver, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while not driver.finished.is_set() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
 
 
 def replay(bag, rate=0.5):

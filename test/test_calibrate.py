@@ -8,15 +8,14 @@ number is checked against the truth it was rendered with.
 
 import json
 import os
-import time
 
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import new_context, spin_for, spin_until_finished
 from sensor_msgs.msg import Image
 from st_stereo.cli import main
 from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
@@ -165,28 +164,20 @@ class RectifiedPairs(Node):
 def test_round_trip_through_the_driver_and_rectifier_nodes(circle_session):
     """Calibrate -> YAML -> driver (bag source) loads it -> rectifier node -> equal rows."""
     _, out, _ = circle_session
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    executor = SingleThreadedExecutor(context=context)
+    context, executor = new_context()
     urls = [Parameter(f'{side}_camera_info_url', value=f'file://{out}/result/{side}.yaml')
             for side in ('left', 'right')]
     nodes = [RectifiedPairs(context), RectifierNode(context=context)]
     for node in nodes:
         executor.add_node(node)
     try:
-        deadline = time.monotonic() + 1.0           # discovery before the first pair
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
+        spin_for(executor, 1.0)             # discovery before the first pair
         driver = DriverNode(context=context, parameter_overrides=[
             Parameter('source', value='bag'), Parameter('bag', value=str(out / 'bag'))] + urls)
         nodes.append(driver)
         executor.add_node(driver)
-        deadline = time.monotonic() + 60.0
-        while not driver.finished.is_set() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
-        deadline = time.monotonic() + 1.5
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
+        spin_until_finished(executor, driver, 60.0)
+        spin_for(executor, 1.5)
         received = nodes[0].images
         stamps = sorted(set(received['left']) & set(received['right']))
         assert driver.published == 60 and len(stamps) >= 55

@@ -166,30 +166,15 @@ def find_target(image, target, max_homography_rms=0.5):
     base = to_u8(image)
     found, reasons = [], []
     for warm in (True, False):
-        up = upsample(base if warm else 255 - base)
+        rough = rough_points(upsample(base if warm else 255 - base), target)
+        if rough is None:
+            continue
+        if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
+            reasons.append('too small')
+            continue
         if target.kind == 'chessboard':
-            ok, corners = cv2.findChessboardCornersSB(
-                up, target.pattern_size,
-                flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
-            if not ok:
-                continue
-            rough = from_upsampled(corners.reshape(-1, 2))
-            if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
-                reasons.append('too small')
-                continue
             refined = refine_chessboard_corners(image, rough, target.pattern_size)
         else:
-            flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if target.kind == 'acircles'
-                     else cv2.CALIB_CB_SYMMETRIC_GRID)
-            # In the (possibly inverted) image the target's features are bright: blobColor 255.
-            ok, centres = cv2.findCirclesGrid(up, target.pattern_size, flags=flags,
-                                              blobDetector=_blob_detector(target, False))
-            if not ok:
-                continue
-            rough = from_upsampled(centres.reshape(-1, 2))
-            if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
-                reasons.append('too small')
-                continue
             refined = refine_circle_centres(image, rough, warm)
         if not refined.valid.all():
             reasons.append('fit failed')
@@ -203,6 +188,21 @@ def find_target(image, target, max_homography_rms=0.5):
     if not found:
         return None, (reasons[0] if reasons else 'not found')
     return min(found, key=lambda d: d.homography_rms), None
+
+
+def rough_points(upsampled_u8, target):
+    """Grid points (n, 2) in original pixels from OpenCV's detector, or None (not found)."""
+    if target.kind == 'chessboard':
+        ok, points = cv2.findChessboardCornersSB(
+            upsampled_u8, target.pattern_size,
+            flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    else:
+        flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if target.kind == 'acircles'
+                 else cv2.CALIB_CB_SYMMETRIC_GRID)
+        # In the (possibly inverted) image the target's features are bright: blobColor 255.
+        ok, points = cv2.findCirclesGrid(upsampled_u8, target.pattern_size, flags=flags,
+                                         blobDetector=_blob_detector(target, False))
+    return from_upsampled(points.reshape(-1, 2)) if ok else None
 
 
 def detect_target(image, target, max_homography_rms=0.5):

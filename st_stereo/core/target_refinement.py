@@ -40,13 +40,12 @@ SADDLE_STEPS = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-4, 1e-3, 1e-3])
 START_EDGE_WIDTH_PX = 0.6
 CENTRE_TOLERANCE_PX = 1e-4
 # Bounds: edge width 0.2-2.5 px, blob radius 0.5-8 px, elongation up to 3:1 (tilted 70 deg).
-_NO_BOUND = np.inf
 BLOB_BOUNDS = np.array([
-    [-_NO_BOUND, -_NO_BOUND, np.log(0.5), -1.1, -1.1, np.log(0.2), -_NO_BOUND, -_NO_BOUND],
-    [_NO_BOUND, _NO_BOUND, np.log(8.0), 1.1, 1.1, np.log(2.5), _NO_BOUND, _NO_BOUND]])
+    [-np.inf, -np.inf, np.log(0.5), -1.1, -1.1, np.log(0.2), -np.inf, -np.inf],
+    [np.inf, np.inf, np.log(8.0), 1.1, 1.1, np.log(2.5), np.inf, np.inf]])
 SADDLE_BOUNDS = np.array([
-    [-_NO_BOUND, -_NO_BOUND, -_NO_BOUND, -_NO_BOUND, np.log(0.2), -_NO_BOUND, -_NO_BOUND],
-    [_NO_BOUND, _NO_BOUND, _NO_BOUND, _NO_BOUND, np.log(2.5), _NO_BOUND, _NO_BOUND]])
+    [-np.inf, -np.inf, -np.inf, -np.inf, np.log(0.2), -np.inf, -np.inf],
+    [np.inf, np.inf, np.inf, np.inf, np.log(2.5), np.inf, np.inf]])
 
 
 def _subsample_offsets(xs, ys, params):
