@@ -1,8 +1,9 @@
 """CCI over I2C: the command sequence against a fake register file."""
 
 import pytest
-from st_stereo.lepton.cci import (CciError, CMD_PING, CMD_REBOOT, CMD_RUN_FFC, FakeCciRegisters,
+from st_stereo.lepton.cci import (CciError, CMD_PING, CMD_REBOOT, CMD_RUN_FFC,
                                   LeptonCCI, RUN, SMBus2Bus)
+from st_stereo.lepton.fakes import FakeCciRegisters
 
 
 class FakeCamera:

@@ -43,12 +43,17 @@ def test_fault_matrix(kind, rate):
     if kind in ('misalign', 'stall'):
         detected = counters['crc_errors'] + counters['gaps'] + counters['repeats'] + \
             counters['bad_ids']
-        assert detected == delivered
+        # The CRC error inside the frame drops it; the misaligned packets after it are found
+        # again (bad ID or CRC outside a frame) and resync: one or two detections per fault.
+        assert delivered <= detected <= 2 * delivered
         assert counters['resyncs'] + counters['reboots'] >= delivered   # reboot replaces one
     if kind == 'ffc_freeze':
         assert counters['ffc_frames'] > 0
         assert all(f.ffc_in_progress == (f.telemetry.ffc_state == 'in_progress')
                    for f in case.frames)
+        # The frozen frames repeat pixels already sent: never published a second time.
+        sent = {f.pixels.tobytes() for f in case.frames}
+        assert len(sent) == len(case.frames) and counters['frozen'] > 0
     # A fault cleared by a resync: back within 300 ms. Faults dense enough to defeat K
     # resyncs in a row (and a stuck camera) are cleared by a CCI reboot, within its bound.
     assert case.recovery_by_resync or case.recovery_through_reboot

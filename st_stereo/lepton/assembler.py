@@ -50,6 +50,7 @@ class LeptonCounters:
     discards_in_frame: int = 0
     skipped_packets: int = 0
     crc_errors: int = 0
+    crc_frames_dropped: int = 0
     gaps: int = 0
     repeats: int = 0
     bad_ids: int = 0
@@ -94,6 +95,8 @@ class FrameAssembler:
     def __init__(self, layout, counters):
         self.layout = layout
         self.counters = counters
+        self.abort_cause = ''        # why the last ABORT: crc, bad_id, gap, repeat, stalled
+        self.abort_in_frame = False  # whether a frame was in progress at that ABORT
         self._rows = [None] * layout.packets
         self._expected = 0
         self._in_frame = False
@@ -112,7 +115,7 @@ class FrameAssembler:
 
     def abort(self):
         """Drop the frame in progress (counted) and ask for a resync."""
-        return self._abort()
+        return self._abort('stalled')
 
     def reset(self):
         """Forget any frame in progress (after a resync); it is counted as aborted."""
@@ -121,7 +124,9 @@ class FrameAssembler:
         self._in_frame = False
         self._expected = 0
 
-    def _abort(self):
+    def _abort(self, cause):
+        self.abort_cause = cause
+        self.abort_in_frame = self._in_frame
         if self._in_frame:
             self.counters.frames_aborted += 1
         self._in_frame = False
@@ -140,11 +145,11 @@ class FrameAssembler:
             return None
         if packet_crc(packet) != ((packet[2] << 8) | packet[3]):
             counters.crc_errors += 1
-            return self._abort()
+            return self._abort('crc')
         number = packet_number(packet_id)
         if number >= self.layout.packets:
             counters.bad_ids += 1
-            return self._abort()
+            return self._abort('bad_id')
         if not self._in_frame:
             if number != 0:
                 counters.skipped_packets += 1
@@ -157,9 +162,9 @@ class FrameAssembler:
         if number != self._expected:
             if number == self._expected - 1:
                 counters.repeats += 1
-            else:
-                counters.gaps += 1
-            return self._abort()
+                return self._abort('repeat')
+            counters.gaps += 1
+            return self._abort('gap')
         self._rows[number] = packet
         if number == 20:   # Lepton 3: the segment field is valid on packet 20 only
             self._segment = segment_number(packet_id)

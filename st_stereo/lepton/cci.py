@@ -4,14 +4,18 @@ CCI, the Lepton's control interface over I2C (address 0x2A, 16-bit registers and
 ``LeptonCCI(bus)`` runs the command sequence of the datasheet: wait until not busy, write the
 data words (SET), the data length and the command, wait until not busy, check the signed error
 code, read the data words (GET). A bus has two methods, ``write_words(register, words)`` and
-``read_words(register, count)``; ``SMBus2Bus`` is the real one, ``FakeCciRegisters`` a register
-file for tests that can drive a simulator (reboot, FFC).
+``read_words(register, count)``; ``SMBus2Bus`` is the real one (test fakes live in
+``st_stereo.lepton.fakes``). One lock per ``LeptonCCI`` (one camera per bus) keeps a command's
+register sequence whole when the reading thread (reboot) and a service (FFC) use it at once.
+``start`` brings a camera from power-up to video: wait for boot (a booting camera NACKs, then
+reports busy), ping, set the telemetry mode and read it back.
 
 smbus2 rather than raw ioctls: it is pure Python, its ``i2c_rdwr`` does the combined
 write-then-read with a repeated start that 16-bit register addresses need, and it is what a
 raw-ioctl version would re-implement line by line.
 """
 
+import threading
 import time
 
 ADDRESS = 0x2A
@@ -34,8 +38,7 @@ CMD_RUN_FFC = 0x0242
 CMD_FFC_STATUS = 0x0244
 CMD_AGC_ENABLE = 0x0100
 CMD_REBOOT = 0x4842
-CMD_GPIO_MODE = 0x4854
-GPIO_MODE_VSYNC = 5
+BOOT_TIMEOUT_S = 10.0        # the datasheet's boot takes about 1 s; USB hubs and cold starts more
 
 ERRORS = {0: 'ok', -1: 'error', -2: 'not ready', -3: 'range error', -4: 'checksum error',
           -5: 'bad argument', -6: 'data size error', -7: 'undefined function',
@@ -56,19 +59,25 @@ class LeptonCCI:
         self.poll_s = poll_s
         self.clock = clock
         self.sleep = sleep
+        self.lock = threading.RLock()
+
+    def _read_status(self, command):
+        try:
+            return self.bus.read_words(REG_STATUS, 1)[0]
+        except OSError as error:
+            raise CciError(f'{_name(command)}: no answer on I2C ({error})') from None
 
     def wait_ready(self, command=None):
         """Poll the status register until not busy; CciError after ``timeout_s``."""
         deadline = self.clock() + self.timeout_s
         polls = 0
         while True:
-            status = self.bus.read_words(REG_STATUS, 1)[0]
+            status = self._read_status(command)
             if not status & STATUS_BUSY:
                 return status
             polls += 1
             if self.clock() > deadline or polls > 100000:
-                name = f'command 0x{command:04X}' if command is not None else 'CCI'
-                raise CciError(f'{name}: camera still busy after {self.timeout_s} s')
+                raise CciError(f'{_name(command)}: camera still busy after {self.timeout_s} s')
             self.sleep(self.poll_s)
 
     def command(self, command, data=(), read_words=0):
@@ -76,18 +85,22 @@ class LeptonCCI:
         if len(data) > 16 or read_words > 16:
             raise CciError(f'command 0x{command:04X}: at most 16 data words, got '
                            f'{max(len(data), read_words)}')
-        self.wait_ready(command)
-        if data:
-            self.bus.write_words(REG_DATA0, list(data))
-        self.bus.write_words(REG_DATA_LENGTH, [max(len(data), read_words)])
-        self.bus.write_words(REG_COMMAND, [command])
-        status = self.wait_ready(command)
-        code = (status >> 8) & 0xFF
-        code = code - 256 if code >= 128 else code
-        if code != 0:
-            raise CciError(f'command 0x{command:04X}: camera error {code} '
-                           f'({ERRORS.get(code, "unknown")})')
-        return self.bus.read_words(REG_DATA0, read_words) if read_words else []
+        with self.lock:
+            try:
+                self.wait_ready(command)
+                if data:
+                    self.bus.write_words(REG_DATA0, list(data))
+                self.bus.write_words(REG_DATA_LENGTH, [max(len(data), read_words)])
+                self.bus.write_words(REG_COMMAND, [command])
+                status = self.wait_ready(command)
+                code = (status >> 8) & 0xFF
+                code = code - 256 if code >= 128 else code
+                if code != 0:
+                    raise CciError(f'{_name(command)}: camera error {code} '
+                                   f'({ERRORS.get(code, "unknown")})')
+                return self.bus.read_words(REG_DATA0, read_words) if read_words else []
+            except OSError as error:        # a NACK (EREMOTEIO) or a bus that went away
+                raise CciError(f'{_name(command)}: I2C transfer failed ({error})') from None
 
     def ping(self):
         """SYS ping: raises CciError when the camera does not answer correctly."""
@@ -114,14 +127,58 @@ class LeptonCCI:
         location = self.command(CMD_TELEMETRY_LOCATION | GET, read_words=2)[0]
         return bool(enabled), 'header' if location == 0 else 'footer'
 
-    def enable_vsync(self):
-        """Route the VSYNC pulse to GPIO3."""
-        self.command(CMD_GPIO_MODE | SET, [GPIO_MODE_VSYNC, 0])
-
     def reboot(self):
         """OEM reboot; the camera needs about a second before video resumes."""
-        self.bus.write_words(REG_DATA_LENGTH, [0])
-        self.bus.write_words(REG_COMMAND, [CMD_REBOOT])
+        with self.lock:
+            try:
+                self.bus.write_words(REG_DATA_LENGTH, [0])
+                self.bus.write_words(REG_COMMAND, [CMD_REBOOT])
+            except OSError as error:
+                raise CciError(f'{_name(CMD_REBOOT)}: I2C transfer failed ({error})') from None
+
+    def wait_booted(self, timeout_s=BOOT_TIMEOUT_S, poll_s=0.05):
+        """
+        Wait until the camera has booted: status bits 1 (boot mode) and 2 (booted), not busy.
+
+        A camera that is still powering up does not acknowledge its address; those NACKs
+        (``OSError``) are retried until ``timeout_s``. Returns the seconds waited.
+        """
+        started = self.clock()
+        status, last_problem = None, 'no answer yet'
+        while True:
+            try:
+                with self.lock:
+                    status = self.bus.read_words(REG_STATUS, 1)[0]
+                booted = STATUS_BOOTED | STATUS_BOOT_MODE
+                if status & booted == booted and not status & STATUS_BUSY:
+                    return self.clock() - started
+                last_problem = f'status 0x{status:04X}: booting'
+            except OSError as error:
+                last_problem = f'no answer on I2C ({error})'
+            if self.clock() - started > timeout_s:
+                raise CciError(f'camera not booted after {timeout_s:g} s ({last_problem})')
+            self.sleep(poll_s)
+
+    def start(self, telemetry, boot_timeout_s=BOOT_TIMEOUT_S):
+        """
+        Bring a camera to video with the telemetry mode the reader expects.
+
+        Waits for boot, pings, sets telemetry (``off``, ``header`` or ``footer``; the camera's
+        power-up default is off) and reads it back: a camera that does not take the setting is
+        a CciError naming what it reports. Returns the seconds spent waiting for boot.
+        """
+        if telemetry not in ('off', 'header', 'footer'):
+            raise ValueError(f'telemetry: expected off, header or footer, got {telemetry!r}')
+        waited = self.wait_booted(boot_timeout_s)
+        with self.lock:
+            self.ping()
+            enabled = telemetry != 'off'
+            self.set_telemetry(enabled, telemetry if enabled else 'footer')
+            got_enabled, got_location = self.telemetry()
+        if got_enabled != enabled or enabled and got_location != telemetry:
+            got = got_location if got_enabled else 'off'
+            raise CciError(f'telemetry: set to {telemetry}, the camera reports {got}')
+        return waited
 
 
 class SMBus2Bus:
@@ -159,79 +216,5 @@ class SMBus2Bus:
         self._bus.close()
 
 
-class FakeCciRegisters:
-    """
-    A Lepton CCI register file for tests: executes commands, reports busy for a few polls.
-
-    Parameters
-    ----------
-    camera : object, optional
-        A simulator with ``reboot()`` and ``run_ffc()``; commands are forwarded to it.
-    busy_polls : int
-        Status reads that report busy after each command.
-
-    """
-
-    def __init__(self, camera=None, busy_polls=2, fpa_temperature_k=301.25):
-        self.camera = camera
-        self.busy_polls = busy_polls
-        self.registers = {REG_STATUS: STATUS_BOOTED | STATUS_BOOT_MODE, REG_DATA_LENGTH: 0}
-        self.values = {CMD_TELEMETRY_ENABLE: [0, 0], CMD_TELEMETRY_LOCATION: [0, 0],
-                       CMD_AGC_ENABLE: [0, 0], CMD_GPIO_MODE: [0, 0]}
-        self.fpa_temperature_k = fpa_temperature_k
-        self.log = []
-        self._busy_left = 0
-        self.stuck_busy = False
-
-    def read_words(self, register, count):
-        """Read registers; the status register reports busy while a command runs."""
-        if register == REG_STATUS:
-            busy = self.stuck_busy or self._busy_left > 0
-            if self._busy_left > 0:
-                self._busy_left -= 1
-            status = self.registers[REG_STATUS] & ~STATUS_BUSY
-            return [status | (STATUS_BUSY if busy else 0)]
-        return [self.registers.get(register + 2 * i, 0) for i in range(count)]
-
-    def write_words(self, register, words):
-        """Write registers; writing the command register executes the command."""
-        for i, word in enumerate(words):
-            self.registers[register + 2 * i] = word & 0xFFFF
-        if register == REG_COMMAND:
-            self._execute(words[0])
-
-    def _set_error(self, code):
-        status = self.registers[REG_STATUS] & 0x00FF
-        self.registers[REG_STATUS] = status | ((code & 0xFF) << 8)
-
-    def _execute(self, command):
-        self.log.append(command)
-        self._busy_left = self.busy_polls
-        self._set_error(0)
-        base, kind = command & ~0x3, command & 0x3
-        length = self.registers.get(REG_DATA_LENGTH, 0)
-        data = [self.registers.get(REG_DATA0 + 2 * i, 0) for i in range(length)]
-        if command == CMD_PING | RUN:
-            return
-        if command == CMD_RUN_FFC:
-            if self.camera is not None:
-                self.camera.run_ffc()
-            return
-        if command == CMD_REBOOT:
-            if self.camera is not None:
-                self.camera.reboot()
-            return
-        if command == CMD_FPA_TEMPERATURE | GET:
-            self.registers[REG_DATA0] = int(round(self.fpa_temperature_k * 100))
-            return
-        if base in self.values and kind in (GET, SET):
-            if kind == SET:
-                if length != 2:
-                    self._set_error(-6)
-                    return
-                self.values[base] = data
-            else:
-                for i, word in enumerate(self.values[base]):
-                    self.registers[REG_DATA0 + 2 * i] = word
-            return
-        self._set_error(-7)
+def _name(command):
+    return f'command 0x{command:04X}' if command is not None else 'CCI'

@@ -11,7 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from st_stereo.lepton.cci import FakeCciRegisters, LeptonCCI
+from st_stereo.lepton.cci import LeptonCCI
+from st_stereo.lepton.fakes import FakeCciRegisters
 from st_stereo.lepton.reader import LeptonReader, RESYNC_IDLE_S
 from st_stereo.lepton.simulator import FaultPlan, LeptonSimulator, SyntheticSceneSource
 

@@ -2,11 +2,14 @@
 The VoSPI frame reader: transport -> packets -> intact unique frames, never hanging.
 
 ``LeptonReader(transport).read_frame(timeout_s)`` returns the next unique frame or None when
-the timeout passes; every wait is bounded by the transport's clock. On any broken frame the
-reader resynchronises (deassert /CS, idle >= 185 ms, then discards until packet 0); after
-``max_resyncs`` resyncs in a row without a good frame it reboots the camera over CCI (when a CCI
-is given). Copies of a unique frame are suppressed (telemetry frame counter when present, else
-identical content), and frozen frames of a flat-field correction are flagged and counted.
+the timeout passes; every wait is bounded by the transport's clock. On a broken frame the
+reader resynchronises (deassert /CS, idle >= 185 ms, then discards until packet 0), except for
+a CRC error inside an otherwise in-sequence frame, which by default only drops that frame and
+waits for the next packet 0 (sync is not lost by a CRC error, and the next core frame is 38 ms
+away instead of a >= 185 ms resync; ``crc_policy='resync'`` restores the datasheet's
+recommendation). After ``max_resyncs`` resyncs in a row without a good frame it reboots the
+camera over CCI (when a CCI is given). Copies of a unique frame are suppressed by content (see
+``DuplicateFilter``), and frozen frames of a flat-field correction are flagged and counted.
 
 A transport provides ``read(nbytes) -> bytes``, ``idle(seconds)`` (/CS deasserted),
 ``wait(seconds)`` (no clocking, /CS held), ``now() -> seconds`` and the attributes
@@ -45,23 +48,21 @@ class DuplicateFilter:
     """
     Classify assembled frames as unique, duplicate copies, or frozen (FFC) repeats.
 
-    With telemetry, a copy carries the frame counter of the frame it repeats. Without, a copy
-    has identical pixels; more than ``copies`` identical frames in a row is a freeze.
+    By content: a copy has the pixels of the frame before it; more than ``copies`` identical
+    frames in a row is a freeze (FFC). The telemetry frame counter is not trusted for this:
+    whether it counts the 27 Hz core frames (then copies carry new counts) or unique frames
+    could not be confirmed from a datasheet here, and either way the same pixels must never be
+    published twice as two unique frames. (A scene so static that two unique 14-bit frames are
+    bit-identical loses the second one, which carries no new information.)
     """
 
     def __init__(self, copies=2):
         self.copies = copies
-        self._last_counter = None
         self._last_pixels = None
         self._run = 0
 
-    def classify(self, pixels, telemetry):
-        """Return 'unique', 'duplicate' or 'frozen'."""
-        if telemetry is not None:
-            if telemetry.frame_counter == self._last_counter:
-                return 'duplicate'
-            self._last_counter = telemetry.frame_counter
-            return 'unique'
+    def classify(self, pixels, telemetry=None):
+        """Return 'unique', 'duplicate' or 'frozen' (``telemetry`` is not used, see above)."""
         if self._last_pixels is not None and np.array_equal(pixels, self._last_pixels):
             self._run += 1
             return 'duplicate' if self._run <= self.copies else 'frozen'
@@ -93,11 +94,20 @@ class LeptonReader:
         (saves CPU; the wait stays well inside the frame period).
     completion_hook : callable, optional
         Called with the stamp of every intact frame, copies included (recovery timing).
+    crc_policy : {'drop', 'resync'}
+        On a CRC error inside an in-sequence frame: drop the frame and wait for the next
+        packet 0 (default; at most ``max_crc_drops`` in a row, then resync), or resync.
 
     """
 
     def __init__(self, transport, telemetry='off', cci=None, max_resyncs=3, reboot_wait_s=1.5,
-                 no_video_s=0.3, frame_gap_wait=True, copies=2, completion_hook=None):
+                 no_video_s=0.3, frame_gap_wait=True, copies=2, completion_hook=None,
+                 crc_policy='drop', max_crc_drops=3):
+        if crc_policy not in ('drop', 'resync'):
+            raise ValueError(f'crc_policy: expected drop or resync, got {crc_policy!r}')
+        self.crc_policy = crc_policy
+        self.max_crc_drops = max_crc_drops
+        self._crc_drops = 0
         self.transport = transport
         self.layout = FrameLayout.for_mode(telemetry)
         self.counters = LeptonCounters()
@@ -167,16 +177,16 @@ class LeptonReader:
         telemetry = None
         if frame.telemetry_payloads:
             telemetry = parse_telemetry_row_a(frame.telemetry_payloads[0])
-        kind = self.duplicates.classify(frame.pixels, telemetry)
+        ffc = telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
+        if ffc:
+            self.counters.ffc_frames += 1      # every frame the camera reports in FFC
+        kind = self.duplicates.classify(frame.pixels)
         if kind == 'duplicate':
             self.counters.duplicates += 1
             return None
         if kind == 'frozen':
             self.counters.frozen += 1
             return None
-        ffc = telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
-        if ffc:
-            self.counters.ffc_frames += 1
         self.counters.unique_frames += 1
         out = LeptonFrame(frame.pixels, frame.stamp, self._unique_index, telemetry, ffc,
                           frame.segment)
@@ -212,9 +222,19 @@ class LeptonReader:
                     self._need_resync = True
                 continue
             if result is FrameAssembler.ABORT:
-                self._need_resync = True
+                assembler = self.assembler
+                if self.crc_policy == 'drop' and assembler.abort_cause == 'crc' and \
+                        assembler.abort_in_frame and self._crc_drops < self.max_crc_drops:
+                    self._crc_drops += 1
+                    self.counters.crc_frames_dropped += 1
+                else:
+                    self._need_resync = True
+                if consumed < len(ids):
+                    self._leftover = chunk[consumed * size:]
+                    self._leftover_stamp = start + consumed * seconds_per_packet
                 continue
             self._failed_resyncs = 0
+            self._crc_drops = 0
             self._last_video = transport.now()
             self._last_frame_start = result.stamp
             if self.completion_hook is not None:
