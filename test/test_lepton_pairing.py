@@ -70,12 +70,31 @@ def test_two_drifting_cameras_pair_within_the_window():
 def test_bad_input():
     with pytest.raises(ValueError, match='max_delta'):
         PairSynchronizer(max_delta=0)
+    with pytest.raises(ValueError, match='max_queue'):
+        PairSynchronizer(max_queue=1)
     sync = PairSynchronizer()
-    sync.push('left', Stamped(1.0))
-    with pytest.raises(ValueError, match='must not go back in time'):
-        sync.push('left', Stamped(0.5))
     with pytest.raises(ValueError, match='side'):
         sync.push('middle', Stamped(2.0))
+
+
+def test_a_backward_stamp_is_dropped_and_counted_and_pairing_goes_on():
+    sync = PairSynchronizer(max_delta=0.05, min_period=0.1)
+    sync.push('left', Stamped(1.0))
+    assert sync.push('left', Stamped(0.5)) == []
+    assert sync.counters.backward_left == 1 and sync.counters.dropped_left == 1
+    pairs = sync.push('right', Stamped(1.01))
+    assert [(p.left.stamp, p.right.stamp) for p in pairs] == [(1.0, 1.01)]
+
+
+def test_a_silent_camera_never_grows_the_other_queue():
+    sync = PairSynchronizer(max_delta=0.05, min_period=0.1, max_queue=4)
+    for i in range(1000):
+        sync.push('left', Stamped(0.1136 * i))
+    assert len(sync.queues['left']) == 4
+    assert sync.counters.overflow_left == 996 and sync.counters.dropped_left == 996
+    # The right camera comes back: pairs resume with the newest left frames.
+    pairs = sync.push('right', Stamped(0.1136 * 999 + 0.01))
+    assert len(pairs) == 1 and pairs[0].left.stamp == 0.1136 * 999
 
 
 def test_min_period_decides_pairs_without_waiting():

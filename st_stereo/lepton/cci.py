@@ -127,6 +127,12 @@ class LeptonCCI:
         location = self.command(CMD_TELEMETRY_LOCATION | GET, read_words=2)[0]
         return bool(enabled), 'header' if location == 0 else 'footer'
 
+    def close(self):
+        """Close the bus (when it can be closed)."""
+        close = getattr(self.bus, 'close', None)
+        if close is not None:
+            close()
+
     def reboot(self):
         """OEM reboot; the camera needs about a second before video resumes."""
         with self.lock:

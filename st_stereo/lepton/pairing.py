@@ -4,7 +4,10 @@ Stereo pairing of two free-running cameras by nearest stamp.
 Two Leptons run on independent clocks and cannot be hardware-locked, so their unique frames
 (period ~113 ms) arrive with an arbitrary, slowly drifting offset. ``PairSynchronizer`` makes
 one-to-one pairs of the nearest stamps within ``max_delta``, gives both images one stamp (the
-midpoint), drops the unmatched frames and counts them, and keeps skew statistics.
+midpoint), drops the unmatched frames and counts them, and keeps skew statistics. Each queue
+holds at most ``max_queue`` frames (a silent camera never makes the other side's queue grow),
+and a frame whose stamp goes back in time is dropped and counted, never an exception: stamps
+should come from a monotonic clock, and a reader thread must not die of one bad stamp.
 """
 
 import collections
@@ -29,6 +32,10 @@ class PairingCounters:
     pairs: int = 0
     dropped_left: int = 0
     dropped_right: int = 0
+    overflow_left: int = 0       # of the dropped: pushed out of a full queue
+    overflow_right: int = 0
+    backward_left: int = 0       # of the dropped: stamp earlier than that side's last
+    backward_right: int = 0
     skew_sum: float = 0.0
     skew_abs_max: float = 0.0
 
@@ -55,14 +62,17 @@ class PairSynchronizer:
     113.6 ms apart, so 0.1 is safe).
     """
 
-    def __init__(self, max_delta=0.05, min_period=0.0):
+    def __init__(self, max_delta=0.05, min_period=0.0, max_queue=4):
         if not (max_delta > 0 and math.isfinite(max_delta)):
             raise ValueError(f'max_delta: expected a positive number of seconds, got '
                              f'{max_delta!r}')
         if not (min_period >= 0 and math.isfinite(min_period)):
             raise ValueError(f'min_period: expected seconds >= 0, got {min_period!r}')
+        if not (isinstance(max_queue, int) and max_queue >= 2):
+            raise ValueError(f'max_queue: expected an integer >= 2, got {max_queue!r}')
         self.max_delta = max_delta
         self.min_period = min_period
+        self.max_queue = max_queue
         self.queues = {'left': collections.deque(), 'right': collections.deque()}
         self.counters = PairingCounters()
         self._last = {'left': -math.inf, 'right': -math.inf}
@@ -71,11 +81,18 @@ class PairSynchronizer:
         """Add a frame of one side; returns the list of pairs that became decidable."""
         if side not in self.queues:
             raise ValueError(f'side: expected left or right, got {side!r}')
+        counters = self.counters
         if frame.stamp < self._last[side]:
-            raise ValueError(f'{side} stamps must not go back in time: {frame.stamp} after '
-                             f'{self._last[side]}')
+            setattr(counters, f'dropped_{side}', getattr(counters, f'dropped_{side}') + 1)
+            setattr(counters, f'backward_{side}', getattr(counters, f'backward_{side}') + 1)
+            return []
         self._last[side] = frame.stamp
-        self.queues[side].append(frame)
+        queue = self.queues[side]
+        if len(queue) >= self.max_queue:
+            queue.popleft()
+            setattr(counters, f'dropped_{side}', getattr(counters, f'dropped_{side}') + 1)
+            setattr(counters, f'overflow_{side}', getattr(counters, f'overflow_{side}') + 1)
+        queue.append(frame)
         return self._drain()
 
     def _drain(self):

@@ -13,6 +13,8 @@ frame checks (against a fake capture). Not verified: a real board's enumeration,
 device naming, and the extension-unit numbering of a given firmware.
 """
 
+import time
+
 import numpy as np
 
 VENDOR_ID = 0x1E4E
@@ -144,50 +146,69 @@ class PureThermalCapture:
         self.capture.release()
 
 
-class _WallClock:
-    """The transport face of a board: wall-clock time for stamps and interleaving."""
+class _MonotonicClock:
+    """The transport face of a board: the clock of its stamps, and its name."""
 
     def __init__(self, device):
-        import time
-        self.now = time.time
+        self.now = time.monotonic
         self.device = device
 
 
 class PureThermalReader:
     """
-    A PureThermal board with the reader's interface (``read_frame``, ``counters``).
+    A PureThermal board with the reader's interface (``read_frame``, ``counters``, ``close``).
 
-    Frames are stamped with the host time at which they were read from V4L2.
+    Frames are stamped with ``time.monotonic()`` when V4L2 returned them (the UVC driver's
+    buffering adds a delay the host cannot see). Copies and FFC-frozen frames are suppressed
+    by content, as for SPI (``DuplicateFilter``).
     """
 
-    def __init__(self, serial, video_device, capture_factory=None, find=None):
+    def __init__(self, serial, video_device, capture_factory=None, find=None, counters=None):
         from st_stereo.lepton.assembler import LeptonCounters
-        if serial:
-            find_board(serial, find)           # a clear error when the board is absent
+        from st_stereo.lepton.reader import DuplicateFilter
+        self.serial = serial
+        self.device = find_board(serial, find) if serial else None   # clear error if absent
         self.capture = PureThermalCapture(video_device, capture_factory)
-        self.transport = _WallClock(f'purethermal:{serial or video_device}')
-        self.counters = LeptonCounters()
+        self.transport = _MonotonicClock(f'purethermal:{serial or video_device}')
+        self.counters = counters if counters is not None else LeptonCounters()
+        self.duplicates = DuplicateFilter()
         self._index = 0
-        self._last = None
 
     def read_frame(self, timeout_s=1.0):
-        """Return the next new frame (identical consecutive frames are copies)."""
-        import time
-
+        """Return the next new frame, or None for a copy (V4L2 reads block)."""
         from st_stereo.lepton.reader import LeptonFrame
         from st_stereo.lepton.telemetry import parse_telemetry_row_a
         pixels, rows = self.capture.read()
-        stamp = time.time()
-        self.counters.frames_completed += 1
-        if self._last is not None and np.array_equal(pixels, self._last):
-            self.counters.duplicates += 1
-            return None
-        self._last = pixels
+        stamp = time.monotonic()
+        counters = self.counters
+        counters.frames_completed += 1
         telemetry = None
         if rows is not None:
             telemetry = parse_telemetry_row_a(rows[0].astype('>u2').tobytes())
-        self.counters.unique_frames += 1
-        frame = LeptonFrame(pixels, stamp, self._index, telemetry,
-                            telemetry is not None and telemetry.ffc_state == 'in_progress')
+        ffc = telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
+        counters.ffc_frames += ffc
+        kind = self.duplicates.classify(pixels)
+        if kind != 'unique':
+            if kind == 'duplicate':
+                counters.duplicates += 1
+            else:
+                counters.frozen += 1
+            return None
+        counters.unique_frames += 1
+        frame = LeptonFrame(pixels, stamp, self._index, telemetry, ffc)
         self._index += 1
         return frame
+
+    def run_ffc(self):
+        """Run an FFC through the board's UVC extension unit (needs the board's serial)."""
+        if self.device is None:
+            raise PureThermalError(f'{self.transport.device}: FFC needs the board found by '
+                                   f'its serial number (parameter <side>_serial)')
+        try:
+            run_ffc(self.device)
+        except (OSError, ValueError) as error:     # usb.core.USBError is an OSError
+            raise PureThermalError(f'{self.transport.device}: FFC failed ({error})') from None
+
+    def close(self):
+        """Release the V4L2 device."""
+        self.capture.close()

@@ -94,6 +94,8 @@ class LeptonReader:
         (saves CPU; the wait stays well inside the frame period).
     completion_hook : callable, optional
         Called with the stamp of every intact frame, copies included (recovery timing).
+    counters : LeptonCounters, optional
+        Counters to add to (a camera's counters across reader restarts); default new ones.
     crc_policy : {'drop', 'resync'}
         On a CRC error inside an in-sequence frame: drop the frame and wait for the next
         packet 0 (default; at most ``max_crc_drops`` in a row, then resync), or resync.
@@ -102,7 +104,7 @@ class LeptonReader:
 
     def __init__(self, transport, telemetry='off', cci=None, max_resyncs=3, reboot_wait_s=1.5,
                  no_video_s=0.3, frame_gap_wait=True, copies=2, completion_hook=None,
-                 crc_policy='drop', max_crc_drops=3):
+                 crc_policy='drop', max_crc_drops=3, counters=None):
         if crc_policy not in ('drop', 'resync'):
             raise ValueError(f'crc_policy: expected drop or resync, got {crc_policy!r}')
         self.crc_policy = crc_policy
@@ -110,7 +112,7 @@ class LeptonReader:
         self._crc_drops = 0
         self.transport = transport
         self.layout = FrameLayout.for_mode(telemetry)
-        self.counters = LeptonCounters()
+        self.counters = counters if counters is not None else LeptonCounters()
         self.assembler = FrameAssembler(self.layout, self.counters)
         self.duplicates = DuplicateFilter(copies)
         self.cci = cci
@@ -127,6 +129,13 @@ class LeptonReader:
         self._last_video = transport.now()
         self._unique_index = 0
         self._unique_stamp = None
+
+    def close(self):
+        """Close the transport and the CCI bus (when they can be closed)."""
+        for part in (self.transport, self.cci):
+            close = getattr(part, 'close', None)
+            if close is not None:
+                close()
 
     def resync(self):
         """Deassert /CS and idle > 185 ms; reboot over CCI after too many failed resyncs."""

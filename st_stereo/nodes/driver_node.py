@@ -6,13 +6,25 @@ Sources: ``sim`` (two simulated cameras looking at a textured plane at ``sim_dep
 ``purethermal`` (two boards by serial number) and ``bag`` (the raw image topics of a bag).
 Publishes ``left/image_raw``, ``right/image_raw`` (mono16 raw counts, never rescaled) and
 ``left/camera_info``, ``right/camera_info`` from camera_calibration YAML (file:// or
-package:// URLs), one identical stamp per pair; every Lepton counter, the pairing and the
-camera telemetry go to ``/diagnostics``. Services: ``trigger_ffc`` (std_srvs/Trigger) and
-``left/set_camera_info``, ``right/set_camera_info`` (sensor_msgs/SetCameraInfo).
+package:// URLs), one identical stamp per pair, and ``pair_info`` (diagnostic_msgs/
+DiagnosticArray with the pair's stamp: both cameras' acquisition times, their skew, FFC flags);
+every Lepton counter, the pairing and the camera telemetry go to ``/diagnostics``. Services:
+``trigger_ffc`` (std_srvs/Trigger) and ``left/set_camera_info``, ``right/set_camera_info``
+(sensor_msgs/SetCameraInfo).
+
+Live cameras (``spi``, ``purethermal``) are each read by their own thread
+(``st_stereo.lepton.stream.CameraStream``), which clocks the camera continuously and restarts it
+with back-off when it fails; a pairing thread pairs the frames and publishes. Acquisition times
+are ``time.monotonic()`` at packet 0 of a unique frame (SPI) or when V4L2 returned it
+(PureThermal), and are mapped onto the node clock when a pair is published, so a wall-clock
+step moves stamps but never pairing. Recorded and simulated sources run on their own clocks in
+one thread.
 """
 
+import collections
 import os
 import pathlib
+import queue
 import threading
 import time
 
@@ -24,7 +36,10 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
 from st_stereo.core.camera_calibration import load_calibration, save_calibration
+from st_stereo.lepton.assembler import LeptonCounters
+from st_stereo.lepton.cci import CciError
 from st_stereo.lepton.pairing import PairSynchronizer
+from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.driver_parameters import DRIVER_PARAMETERS, SIDES
@@ -33,6 +48,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+UNIQUE_HZ = 26.4 / 3
+LIVE_SOURCES = ('spi', 'purethermal')
 
 
 def resolve_url(url):
@@ -76,8 +93,10 @@ class DriverNode(Node):
         self.info_urls = [value(f'{side}_camera_info_url') for side in SIDES]
         self.frame_ids = [value(f'{side}_frame_id') for side in SIDES]
         self.calibrations = [self._load_calibration(url) for url in self.info_urls]
-        opened = self._open_source(captures, devices, buses, spi_hz)
-        self.readers, self.cameras, self.ccis = opened
+        self.live = self.source in LIVE_SOURCES
+        self.boot_timeout = value('boot_timeout')
+        self.give_up_after = value('give_up_after')
+        self.exit_code = 0
         overriding = QoSOverridingOptions.with_default_policies()
         self.image_pubs = [self.create_publisher(Image, f'{side}/image_raw', RELIABLE,
                                                  qos_overriding_options=overriding)
@@ -85,6 +104,8 @@ class DriverNode(Node):
         self.info_pubs = [self.create_publisher(CameraInfo, f'{side}/camera_info', RELIABLE,
                                                 qos_overriding_options=overriding)
                           for side in SIDES]
+        self.pair_info_pub = self.create_publisher(DiagnosticArray, 'pair_info', RELIABLE,
+                                                   qos_overriding_options=overriding)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, 'trigger_ffc', self._trigger_ffc)
         for index, side in enumerate(SIDES):
@@ -92,15 +113,26 @@ class DriverNode(Node):
                 SetCameraInfo, f'{side}/set_camera_info',
                 lambda request, response, i=index: self._set_camera_info(i, request, response))
         self.pairing = PairSynchronizer(self.max_delta, min_period=0.1)
-        self.frequency = diagnostics.FrequencyTracker(26.4 / 3)
+        self.frequency = diagnostics.FrequencyTracker(UNIQUE_HZ)
+        self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_HZ) for _ in SIDES]
+        self.recent_skews = collections.deque(maxlen=256)
+        self.ffc_pairs = 0
         self.published = 0
         self.last_telemetry = [None, None]
         self.finished = threading.Event()
         self.last_error = ''
+        self.started = time.monotonic()
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='lepton_reader', daemon=True)
-        self._thread.start()
+        if self.live:
+            self.readers, self.cameras, self.ccis = [None, None], [None, None], [None, None]
+            self._start_live(devices, buses, spi_hz)
+        else:
+            self.streams = None
+            self.readers, self.cameras, self.ccis = self._open_source(captures)
+            self._thread = threading.Thread(target=self._run, name='lepton_reader',
+                                            daemon=True)
+            self._thread.start()
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _value(self, name):
@@ -114,7 +146,7 @@ class DriverNode(Node):
                              f'the Lepton 2 is 80x60')
         return calibration
 
-    def _open_source(self, captures, devices, buses, spi_hz):
+    def _open_source(self, captures):
         telemetry = self.telemetry
         if self.source == 'sim':
             from st_stereo.core.triangulation import StereoModel
@@ -124,9 +156,9 @@ class DriverNode(Node):
                                                          self.calibrations[1].projection)
             sources = plane_scene_sources(model, self.sim_depth, self.sim_texture or None)
             cameras = [LeptonSimulator(sources[0], telemetry=telemetry, drift_ppm=30.0,
-                                       phase_s=0.004, seed=1),
+                                       phase_s=0.004, seed=1, keep_intended=False),
                        LeptonSimulator(sources[1], telemetry=telemetry, drift_ppm=-20.0,
-                                       phase_s=0.011, seed=2)]
+                                       phase_s=0.011, seed=2, keep_intended=False)]
             readers = [LeptonReader(camera, telemetry=telemetry) for camera in cameras]
             return readers, cameras, [None, None]
         if self.source == 'capture':
@@ -143,22 +175,74 @@ class DriverNode(Node):
         if self.source == 'bag':
             from st_stereo.nodes.bag_source import open_bag_sides
             return open_bag_sides(self._value('bag')), [None, None], [None, None]
-        if self.source == 'purethermal':
-            from st_stereo.lepton.purethermal import PureThermalReader
-            readers = [PureThermalReader(self._value(f'{side}_serial'),
-                                         self._value(f'{side}_video_device')) for side in SIDES]
-            return readers, [None, None], [None, None]
-        if self.source == 'spi':
-            from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
-            from st_stereo.lepton.spi import SpiTransport
-            ccis = [LeptonCCI(SMBus2Bus(bus)) for bus in buses]
-            readers = [LeptonReader(SpiTransport(device, spi_hz), telemetry=telemetry, cci=cci)
-                       for device, cci in zip(devices, ccis)]
-            return readers, [None, None], ccis
         raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
                          f'{self.source!r}')
 
-    # --- the reading thread -----------------------------------------------------------------
+    # --- live cameras: a thread per camera, a pairing thread --------------------------------
+    def _start_live(self, devices, buses, spi_hz):
+        from st_stereo.lepton import stream
+        from st_stereo.lepton.spi import MAX_HZ, MIN_HZ
+        if self.source == 'spi' and not MIN_HZ <= spi_hz <= MAX_HZ:
+            raise ValueError(f'spi_hz: expected {MIN_HZ} to {MAX_HZ} Hz, got {spi_hz} (a '
+                             f'frame must be clocked out well within one 37.9 ms period)')
+        self.camera_counters = [LeptonCounters() for _ in SIDES]
+        self._frames = queue.Queue(maxsize=16)
+        self.queue_drops = [0, 0]
+        logger = self.get_logger()
+        openers = []
+        for index, side in enumerate(SIDES):
+            counters = self.camera_counters[index]
+            if self.source == 'spi':
+                openers.append(lambda d=devices[index], b=buses[index], c=counters:
+                               stream.open_spi_camera(d, spi_hz, b, self.telemetry, c,
+                                                      self.boot_timeout, logger.warning))
+            else:
+                openers.append(lambda i=index, side=side, c=counters:
+                               stream.open_purethermal_camera(
+                                   self._value(f'{side}_serial'),
+                                   self._value(f'{side}_video_device'), c))
+        self.streams = [stream.CameraStream(side, opener, self._on_frame, self._on_fatal,
+                                            log=logger.warning)
+                        for side, opener in zip(SIDES, openers)]
+        self._thread = threading.Thread(target=self._pair_live, name='lepton_pairing',
+                                        daemon=True)
+        self._thread.start()
+        for camera_stream in self.streams:
+            camera_stream.start()
+
+    def _on_frame(self, side, frame):
+        # Called by a camera's reading thread: hand over and return at once.
+        try:
+            self._frames.put_nowait((side, frame))
+        except queue.Full:
+            self.queue_drops[SIDES.index(side)] += 1
+
+    def _on_fatal(self, side, error):
+        self._fail(f'{side} camera thread stopped: {type(error).__name__}: {error}')
+
+    def _fail(self, message):
+        """A camera cannot recover: say why and end the node (non-zero exit, for respawn)."""
+        self.last_error = message
+        self.exit_code = 1
+        self.get_logger().fatal(f'{message}; shutting down')
+        self._stop.set()
+        self.finished.set()
+        self.context.try_shutdown()
+
+    def _pair_live(self):
+        while not self._stop.is_set():
+            try:
+                side, frame = self._frames.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            index = SIDES.index(side)
+            self.camera_rates[index].tick(time.monotonic())
+            self.last_telemetry[index] = frame.telemetry
+            for pair in self.pairing.push(side, frame):
+                self._publish_pair(pair, live=True)
+        self.finished.set()
+
+    # --- recorded and simulated sources: one thread on their own clocks ----------------------
     def _run(self):
         clock_start = self.get_clock().now().nanoseconds * 1e-9
         wall_start = time.monotonic()
@@ -179,13 +263,15 @@ class DriverNode(Node):
                 if frame is None:
                     continue
                 self.last_telemetry[side] = frame.telemetry
+                self.camera_rates[side].tick(time.monotonic())
                 if base is None:
                     base = frame.stamp
                 if self.duration and frame.stamp - base > self.duration:
                     break
                 for pair in self.pairing.push(SIDES[side], frame):
                     restamp = self.source in ('sim', 'capture')
-                    self._publish_pair(pair, clock_start if restamp else 0.0, base)
+                    self._publish_pair(pair, clock_start=clock_start if restamp else 0.0,
+                                       base=base)
         except EndOfStream:
             pass
         except Exception as error:      # noqa: B902 - reported, the node stays up
@@ -194,13 +280,21 @@ class DriverNode(Node):
         finally:
             self.finished.set()
 
-    def _publish_pair(self, pair, clock_start, base):
-        # Simulated streams and raw captures are re-stamped onto the node clock; SPI and
-        # PureThermal stamps are already wall time (read times); a bag keeps its stamps.
-        stamp_s = clock_start + (pair.stamp - base) if clock_start else pair.stamp
+    def _to_stamp_s(self, acquired, live, clock_start, base):
+        """Stamp (node-clock seconds) of an acquisition time of the source."""
+        if live:
+            # Monotonic acquisition time -> node clock: the clock's reading now, minus the
+            # age of the acquisition.
+            now_s = self.get_clock().now().nanoseconds * 1e-9
+            return now_s - (time.monotonic() - acquired)
+        # Simulated streams and raw captures are re-stamped onto the node clock from their
+        # start; a bag keeps its recorded stamps.
+        return clock_start + (acquired - base) if clock_start else acquired
+
+    def _publish_pair(self, pair, live=False, clock_start=0.0, base=0.0):
+        stamp_s = self._to_stamp_s(pair.stamp, live, clock_start, base)
         header = Header()
-        header.stamp.sec = int(stamp_s)
-        header.stamp.nanosec = int(round((stamp_s - int(stamp_s)) * 1e9)) % 1_000_000_000
+        header.stamp = _stamp_msg(stamp_s)
         for index, frame in enumerate((pair.left, pair.right)):
             header_side = Header(stamp=header.stamp, frame_id=self.frame_ids[index])
             self.image_pubs[index].publish(conversions.image_to_msg(frame.pixels, header_side))
@@ -208,27 +302,61 @@ class DriverNode(Node):
                 calibration = self.calibrations[index]
             self.info_pubs[index].publish(conversions.camera_info_from_calibration(
                 calibration, header_side))
+        self._publish_pair_info(pair, header, live, clock_start, base)
         self.published += 1
         now = time.time()
-        self.frequency.tick(now)
+        self.frequency.tick(time.monotonic())
+        self.recent_skews.append(pair.skew)
         # Wall time each stamp went out (bag stamps are not wall time): for latency monitors.
         self.publish_wall_times[(header.stamp.sec, header.stamp.nanosec)] = now
         while len(self.publish_wall_times) > 256:
             self.publish_wall_times.pop(next(iter(self.publish_wall_times)))
 
+    def _publish_pair_info(self, pair, header, live, clock_start, base):
+        ffc = [bool(pair.left.ffc_in_progress), bool(pair.right.ffc_in_progress)]
+        self.ffc_pairs += any(ffc)
+        values = {'skew (ms)': round(1e3 * pair.skew, 3)}
+        for side, frame, in_ffc in zip(SIDES, (pair.left, pair.right), ffc):
+            stamp = _stamp_msg(self._to_stamp_s(frame.stamp, live, clock_start, base))
+            values[f'{side} acquisition stamp'] = f'{stamp.sec}.{stamp.nanosec:09d}'
+            values[f'{side} frame index'] = frame.index
+            values[f'{side} ffc'] = in_ffc
+        level = diagnostics.WARN if any(ffc) else diagnostics.OK
+        message = 'a camera is in FFC (frozen or about to freeze)' if any(ffc) else 'ok'
+        array = DiagnosticArray(header=header)
+        array.status = [diagnostics.status(f'{self.get_name()}: stereo pair', self.source,
+                                           level, message, values)]
+        self.pair_info_pub.publish(array)
+
     # --- services ---------------------------------------------------------------------------
+    def _ffc_actions(self):
+        """One callable per camera that starts an FFC, or None where there is no control."""
+        if not self.live:
+            return [camera.run_ffc if camera is not None else None for camera in self.cameras]
+        actions = []
+        for camera_stream in self.streams:
+            reader = camera_stream.reader
+            control = getattr(reader, 'control', None) if self.source == 'spi' else reader
+            actions.append(control.run_ffc if control is not None else None)
+        return actions
+
     def _trigger_ffc(self, request, response):
-        done = []
-        for camera, cci in zip(self.cameras, self.ccis):
-            if cci is not None:
-                cci.run_ffc()
-                done.append('cci')
-            elif camera is not None:
-                camera.run_ffc()
-                done.append('sim')
-        response.success = bool(done)
-        response.message = 'FFC started on both cameras' if done else \
-            f'source {self.source} has no camera control'
+        done, failed = [], []
+        for side, action in zip(SIDES, self._ffc_actions()):
+            if action is None:
+                failed.append(f'{side}: no camera control (source {self.source}, or the camera '
+                              f'is not open)')
+                continue
+            try:
+                action()
+                done.append(side)
+            except (CciError, OSError, PureThermalError, ValueError) as error:
+                failed.append(f'{side}: {error}')
+        response.success = not failed
+        response.message = '; '.join(([f'FFC started on {" and ".join(done)}'] if done else [])
+                                     + failed)
+        if failed:
+            self.get_logger().warning(f'trigger_ffc: {response.message}')
         return response
 
     def _set_camera_info(self, index, request, response):
@@ -254,40 +382,96 @@ class DriverNode(Node):
 
     # --- diagnostics ------------------------------------------------------------------------
     def _publish_diagnostics(self):
-        statuses = []
-        level, summary, values = self.frequency.values(time.time())
-        pairing = self.pairing.counters
-        values.update({'pairs': pairing.pairs, 'frames dropped (left unmatched)':
-                       pairing.dropped_left, 'frames dropped (right unmatched)':
-                       pairing.dropped_right, 'pair skew mean (ms)':
-                       round(1e3 * pairing.skew_mean, 2) if pairing.pairs else 'n/a',
-                       'pair skew max (ms)': round(1e3 * pairing.skew_abs_max, 2)})
-        if self.last_error:
-            level, summary = diagnostics.ERROR, self.last_error
-        statuses.append(diagnostics.status(f'{self.get_name()}: stereo pairs', self.source,
-                                           level, summary, values))
-        for index, reader in enumerate(self.readers):
-            counters = reader.counters.as_dict()
-            hardware = getattr(reader.transport, 'device', f'{self.source}:{SIDES[index]}')
-            telemetry = self.last_telemetry[index]
-            if telemetry is not None:
-                counters['FPA temperature (K)'] = telemetry.fpa_temperature_k
-                counters['housing temperature (K)'] = telemetry.housing_temperature_k
-                counters['FFC state'] = telemetry.ffc_state
-            lost = counters['frames_aborted'] + counters['timeouts']
-            level = diagnostics.OK if not lost else diagnostics.WARN
-            statuses.append(diagnostics.status(
-                f'{self.get_name()}: {SIDES[index]} camera', hardware, level,
-                f'{counters["unique_frames"]} frames, {lost} lost', counters))
+        now = time.monotonic()
+        if self.live and self.give_up_after > 0 and not self._stop.is_set():
+            for side, camera_stream in zip(SIDES, self.streams):
+                silent = min(camera_stream.seconds_since_frame(now), now - self.started)
+                if silent > self.give_up_after:
+                    self._fail(f'{side} camera: no frame for {silent:.0f} s (give_up_after '
+                               f'{self.give_up_after:g} s; last error: '
+                               f'{camera_stream.counters.last_error or "none"})')
+                    return
+        statuses = [self._pairs_status(now)]
+        for index in range(len(SIDES)):
+            statuses.append(self._camera_status(index, now))
         diagnostics.publish(self, self.diagnostics_pub, statuses)
 
+    def _pairs_status(self, now):
+        level, summary, values = self.frequency.values(now)
+        pairing = self.pairing.counters
+        skews = sorted(abs(skew) for skew in self.recent_skews)
+        values.update({
+            'pairs': pairing.pairs, 'pairs with a camera in FFC': self.ffc_pairs,
+            'frames dropped (left unmatched)': pairing.dropped_left,
+            'frames dropped (right unmatched)': pairing.dropped_right,
+            'frames dropped (queue full)': pairing.overflow_left + pairing.overflow_right,
+            'frames dropped (stamp went back)': pairing.backward_left + pairing.backward_right,
+            'pair skew mean (ms)': round(1e3 * pairing.skew_mean, 2) if pairing.pairs else 'n/a',
+            'pair skew max (ms)': round(1e3 * pairing.skew_abs_max, 2),
+            'pair |skew| median, last 256 (ms)':
+                round(1e3 * skews[len(skews) // 2], 2) if skews else 'n/a',
+            'max_pair_delta (ms)': round(1e3 * self.max_delta, 2)})
+        if self.live:
+            values['frames dropped (handover queue full)'] = sum(self.queue_drops)
+        if self.last_error:
+            level, summary = diagnostics.ERROR, self.last_error
+        return diagnostics.status(f'{self.get_name()}: stereo pairs', self.source, level,
+                                  summary, values)
+
+    def _camera_status(self, index, now):
+        side = SIDES[index]
+        if self.live:
+            camera_stream = self.streams[index]
+            counters = self.camera_counters[index].as_dict()
+            counters.update({f'stream {key}': value for key, value in
+                             camera_stream.counters.as_dict().items()
+                             if key != 'last_frame_time'})
+            reader = camera_stream.reader
+            hardware = getattr(getattr(reader, 'transport', None), 'device', f'{side} camera')
+            silent = camera_stream.seconds_since_frame(now)
+        else:
+            reader = self.readers[index]
+            counters = reader.counters.as_dict()
+            hardware = getattr(reader.transport, 'device', f'{self.source}:{side}')
+            silent = 0.0 if counters['unique_frames'] else float('inf')
+        telemetry = self.last_telemetry[index]
+        if telemetry is not None:
+            counters['FPA temperature (K)'] = telemetry.fpa_temperature_k
+            counters['housing temperature (K)'] = telemetry.housing_temperature_k
+            counters['FFC state'] = telemetry.ffc_state
+        rate = self.camera_rates[index].frequency(now)
+        counters['unique frames per second'] = round(rate, 3)
+        lost = counters['frames_aborted'] + counters['timeouts']
+        if not counters['unique_frames'] or silent > 1.0 and not self.finished.is_set():
+            level = diagnostics.ERROR
+            summary = 'no frames' if not counters['unique_frames'] else \
+                f'no frame for {silent:.1f} s'
+            if self.live and self.streams[index].counters.last_error:
+                summary += f' ({self.streams[index].counters.last_error})'
+        elif self.live and rate < 8.0 and now - self.started > 6.0:
+            level, summary = diagnostics.WARN, f'{rate:.2f} unique frames/s, below 8'
+        else:
+            level = diagnostics.OK if not lost else diagnostics.WARN
+            summary = f'{counters["unique_frames"]} frames, {lost} lost'
+        return diagnostics.status(f'{self.get_name()}: {side} camera', hardware, level, summary,
+                                  counters)
+
     def destroy_node(self):
-        """Stop the reading thread, then the node."""
+        """Stop the reading threads and close the devices, then the node."""
         self._stop.set()
+        for camera_stream in self.streams or ():
+            camera_stream.stop()
         self._thread.join(timeout=2.0)
         super().destroy_node()
 
 
+def _stamp_msg(stamp_s):
+    """builtin_interfaces/Time of a stamp in seconds (never negative)."""
+    from builtin_interfaces.msg import Time
+    nanoseconds = max(0, int(round(stamp_s * 1e9)))
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
 def main(args=None):
-    """Run the driver node."""
-    spin_node(DriverNode, args)
+    """Run the driver node; exits non-zero when a camera could not recover."""
+    return spin_node(DriverNode, args)

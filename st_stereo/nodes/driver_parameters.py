@@ -8,11 +8,19 @@ DRIVER_PARAMETERS = [
      '(the raw image topics of a rosbag2)'),
     ('bag', '', 'bag: rosbag2 directory holding left/image_raw and right/image_raw'),
     ('telemetry', 'off', 'camera telemetry rows: off, header or footer'),
-    ('max_pair_delta', 0.05, 'largest stamp difference of a stereo pair, seconds'),
+    ('max_pair_delta', 0.05, 'largest difference of the two acquisition times of a stereo '
+     'pair, seconds: two free-running Leptons drift through every phase, so their frames are '
+     'up to half a unique-frame period (56.8 ms) apart; with 0.05 about 12 % of the time has '
+     'no pair (see docs/lepton.md)'),
     ('duration', 0.0, 'stop after this many seconds of stream (0 = until the source ends)'),
     ('sim_depth', 3.5, 'sim: depth of the textured plane the cameras see, metres'),
     ('sim_texture', '', 'sim: texture image (empty = a shared thermal frame)'),
-    ('spi_hz', 16000000, 'spi: SPI clock, Hz (2 to 20 MHz)'),
+    ('spi_hz', 16000000, 'spi: SPI clock, Hz (4 to 20 MHz: a frame must be clocked out well '
+     'within one 37.9 ms core period)'),
+    ('boot_timeout', 10.0, 'spi: seconds to wait for a camera to boot (I2C NACKs, then busy) '
+     'before its start-up counts as failed and is retried'),
+    ('give_up_after', 60.0, 'spi, purethermal: exit the node (non-zero, for launch respawn) '
+     'when a camera has delivered no frame for this many seconds (0 = never)'),
 ] + [
     item for index, side in enumerate(SIDES) for item in (
         (f'{side}_capture', '', f'capture: raw capture file of the {side} camera'),

@@ -54,7 +54,7 @@ class SuiteMonitor(Node):
 
 
 def main(args=None):
-    """Run the pipeline until Ctrl-C."""
+    """Run the pipeline until Ctrl-C; exits non-zero when the driver could not recover."""
     rclpy.init(args=args)
     nodes = build_nodes()
     executor = SingleThreadedExecutor()
@@ -68,6 +68,7 @@ def main(args=None):
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+    return max(getattr(node, 'exit_code', 0) for node in nodes)
 
 
 def default_recording():

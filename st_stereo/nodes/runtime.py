@@ -15,7 +15,12 @@ def with_default_namespace(kwargs):
 
 
 def spin_node(factory, args=None):
-    """Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown."""
+    """
+    Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown.
+
+    Returns the node's ``exit_code`` (0 when it has none): a node that shuts itself down
+    because it cannot go on sets it, so the process exits non-zero and launch can respawn it.
+    """
     rclpy.init(args=args)
     node = factory()
     try:
@@ -25,3 +30,4 @@ def spin_node(factory, args=None):
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+    return getattr(node, 'exit_code', 0)
