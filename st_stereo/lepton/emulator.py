@@ -154,6 +154,7 @@ class _Camera:
         self.last_write_t = -math.inf
         self.last_write_s = 0.0
         self.pixels_cache = (None, None, False)
+        self.last_recorded = -1
         self.stats = collections.Counter()
 
     # --- hooks of the CCI register file (called from the I2C thread) -------------------
@@ -247,8 +248,9 @@ class _Camera:
                 fpa_temperature_k=300.0, ffc_state='in_progress' if ffc else 'complete',
                 agc=False, serial=self.config.serial, frame_mean=int(pixels.mean()))
             payloads[layout.telemetry_packets[0]] = np.frombuffer(row_a, dtype='>u2')
-        if core % 3 == 0:
-            self.records.put((self.config.name, unique, self._core_time(core),
+        if unique > self.last_recorded:       # the first copy of it the camera sends
+            self.last_recorded = unique
+            self.records.put((self.config.name, unique, self._core_time(3 * unique),
                               pixels_digest(pixels), bool(ffc)))
             self.stats['unique_sent'] += 1
         self.stats['frames_started'] += 1
@@ -512,11 +514,15 @@ class RigEmulator:
             shutil.rmtree(self.directory, ignore_errors=True)
         return False
 
-    def collect(self):
-        """Move the records of sent unique frames into ``sent`` (name -> list); returns it."""
+    def collect(self, settle_s=0.5):
+        """
+        Move the records of sent unique frames into ``sent`` (name -> list); returns it.
+
+        Records travel through a queue: waits up to ``settle_s`` for the last ones.
+        """
         while True:
             try:
-                name, unique, stamp, digest, ffc = self._records.get_nowait()
+                name, unique, stamp, digest, ffc = self._records.get(timeout=settle_s)
             except (queue.Empty, OSError, ValueError):
                 break
             self.sent[name].append(SentFrame(unique, stamp, digest, ffc))

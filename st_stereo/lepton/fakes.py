@@ -230,3 +230,98 @@ def install_fake_modules(**modules):
                 sys.modules.pop(name, None)
             else:
                 sys.modules[name] = module
+
+
+# --- PureThermal / V4L2 on the wall clock ----------------------------------------------------
+class FakeV4L2Board:
+    """
+    A PureThermal board's V4L2 stream on the wall clock, in the calling process.
+
+    Core frames come every 1 / 26.4 s of the board's own clock (``phase_s``, ``drift_ppm``),
+    each unique frame three times, Y16 80x60 (80x63 with a telemetry footer). A read blocks
+    until the next frame; a reader that falls behind gets the newest frame (the UVC queue
+    drops the rest). ``unplug`` makes reads fail and new opens fail until ``replug``. Every
+    unique frame sent is recorded in ``sent`` (``SentFrame``: index, ready time, digest).
+    """
+
+    def __init__(self, name, scene, phase_s=0.0, drift_ppm=0.0, footer=False):
+        import threading
+        import time
+        self._time = time
+        self.name = name
+        self.scene = scene
+        self.period = 1.0 / (26.4 * (1.0 + drift_ppm * 1e-6))
+        self.epoch = time.monotonic() + phase_s
+        self.footer = footer
+        self.plugged = True
+        self.sent = []
+        self.lock = threading.Lock()
+        self._cache = (None, None)
+
+    def unplug(self):
+        """The board disappears (reads fail, the device cannot be opened)."""
+        self.plugged = False
+
+    def replug(self):
+        """The board is back."""
+        self.plugged = True
+
+    def open(self, device, api=None):
+        """What ``cv2.VideoCapture(device, cv2.CAP_V4L2)`` returns for this board."""
+        return _FakeV4L2Capture(self)
+
+    def frame_at(self, core):
+        """The Y16 frame of core frame ``core`` (records the unique frame once)."""
+        from st_stereo.lepton.emulator import pixels_digest, SentFrame
+        from st_stereo.lepton.telemetry import encode_telemetry_row_a
+        import numpy as np
+        unique = core // 3
+        with self.lock:
+            cached, pixels = self._cache
+            if cached != unique:
+                ready = self.epoch + 3 * unique * self.period
+                counts = self.scene.frame(ready - self.epoch, unique)
+                pixels = np.clip(np.round(counts), 0, 16383).astype(np.uint16)
+                self._cache = (unique, pixels)
+                self.sent.append(SentFrame(unique, ready, pixels_digest(pixels), False))
+        if not self.footer:
+            return pixels.copy()
+        row_a = np.frombuffer(encode_telemetry_row_a(core, uptime_ms=core * 38,
+                                                     fpa_temperature_k=300.0), dtype='>u2')
+        footer = np.zeros((3, 80), np.uint16)
+        footer[0] = row_a
+        return np.vstack([pixels, footer])
+
+
+class _FakeV4L2Capture:
+    def __init__(self, board):
+        self.board = board
+        self.opened = board.plugged
+        self.next_core = None
+
+    def isOpened(self):  # noqa: N802 - OpenCV's name
+        return self.opened
+
+    def set(self, prop, value):
+        return True
+
+    def read(self):
+        board, clock = self.board, self.board._time
+        if not self.opened or not board.plugged:
+            clock.sleep(0.05)
+            return False, None
+        now = clock.monotonic()
+        ready = int((now - board.epoch) // board.period)
+        if self.next_core is None or self.next_core <= ready - 1:
+            self.next_core = max(ready + 1, 0)
+        wait = board.epoch + self.next_core * board.period - now
+        if wait > 0:
+            clock.sleep(wait)
+        core = self.next_core
+        self.next_core += 1
+        if not board.plugged:
+            return False, None
+        return True, board.frame_at(core)
+
+    def release(self):
+        self.opened = False

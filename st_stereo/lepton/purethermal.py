@@ -173,13 +173,15 @@ class PureThermalReader:
         self.counters = counters if counters is not None else LeptonCounters()
         self.duplicates = DuplicateFilter()
         self._index = 0
+        self._previous_stamp = None
 
     def read_frame(self, timeout_s=1.0):
         """Return the next new frame, or None for a copy (V4L2 reads block)."""
-        from st_stereo.lepton.reader import LeptonFrame
+        from st_stereo.lepton.reader import CORE_FRAME_PERIOD_S, first_copy_known, LeptonFrame
         from st_stereo.lepton.telemetry import parse_telemetry_row_a
         pixels, rows = self.capture.read()
         stamp = time.monotonic()
+        previous, self._previous_stamp = self._previous_stamp, stamp
         counters = self.counters
         counters.frames_completed += 1
         telemetry = None
@@ -195,7 +197,8 @@ class PureThermalReader:
                 counters.frozen += 1
             return None
         counters.unique_frames += 1
-        frame = LeptonFrame(pixels, stamp, self._index, telemetry, ffc)
+        frame = LeptonFrame(pixels, stamp, self._index, telemetry, ffc,
+                            stamp_exact=first_copy_known(previous, stamp, CORE_FRAME_PERIOD_S))
         self._index += 1
         return frame
 

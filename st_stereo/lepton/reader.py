@@ -42,6 +42,16 @@ class LeptonFrame:
     telemetry: object = None    # Telemetry or None
     ffc_in_progress: bool = False
     segment: int = 0
+    # True when ``stamp`` is the acquisition of the unique frame's first copy: the core frame
+    # just before it (the previous frame's last copy) was read too. After a resync, a CRC drop
+    # or a lost frame the first frame seen may be its second or third copy (38 or 76 ms late).
+    stamp_exact: bool = True
+
+
+def first_copy_known(previous_stamp, stamp, period_s):
+    """Whether a new unique frame at ``stamp`` follows a frame read one core period earlier."""
+    return previous_stamp is not None and 0.5 * period_s < stamp - previous_stamp < \
+        1.5 * period_s
 
 
 class DuplicateFilter:
@@ -128,7 +138,7 @@ class LeptonReader:
         self._last_frame_start = None
         self._last_video = transport.now()
         self._unique_index = 0
-        self._unique_stamp = None
+        self._previous_stamp = None      # stamp of the last intact frame (copies included)
 
     def close(self):
         """Close the transport and the CCI bus (when they can be closed)."""
@@ -183,6 +193,7 @@ class LeptonReader:
         return chunk[:whole], start
 
     def _handle(self, frame):
+        previous, self._previous_stamp = self._previous_stamp, frame.stamp
         telemetry = None
         if frame.telemetry_payloads:
             telemetry = parse_telemetry_row_a(frame.telemetry_payloads[0])
@@ -198,7 +209,8 @@ class LeptonReader:
             return None
         self.counters.unique_frames += 1
         out = LeptonFrame(frame.pixels, frame.stamp, self._unique_index, telemetry, ffc,
-                          frame.segment)
+                          frame.segment, first_copy_known(previous, frame.stamp,
+                                                          CORE_FRAME_PERIOD_S))
         self._unique_index += 1
         return out
 

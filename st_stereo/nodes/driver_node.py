@@ -116,6 +116,7 @@ class DriverNode(Node):
         self.frequency = diagnostics.FrequencyTracker(UNIQUE_HZ)
         self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_HZ) for _ in SIDES]
         self.recent_skews = collections.deque(maxlen=256)
+        self.inexact_drops = [0, 0]
         self.ffc_pairs = 0
         self.published = 0
         self.last_telemetry = [None, None]
@@ -238,6 +239,9 @@ class DriverNode(Node):
             index = SIDES.index(side)
             self.camera_rates[index].tick(time.monotonic())
             self.last_telemetry[index] = frame.telemetry
+            if not frame.stamp_exact:
+                self.inexact_drops[index] += 1     # its acquisition time is not known
+                continue
             for pair in self.pairing.push(side, frame):
                 self._publish_pair(pair, live=True)
         self.finished.set()
@@ -268,6 +272,9 @@ class DriverNode(Node):
                     base = frame.stamp
                 if self.duration and frame.stamp - base > self.duration:
                     break
+                if not frame.stamp_exact:
+                    self.inexact_drops[side] += 1
+                    continue
                 for pair in self.pairing.push(SIDES[side], frame):
                     restamp = self.source in ('sim', 'capture')
                     self._publish_pair(pair, clock_start=clock_start if restamp else 0.0,
@@ -411,6 +418,8 @@ class DriverNode(Node):
             'pair |skew| median, last 256 (ms)':
                 round(1e3 * skews[len(skews) // 2], 2) if skews else 'n/a',
             'max_pair_delta (ms)': round(1e3 * self.max_delta, 2)})
+        values['frames dropped (acquisition time unknown: first after a gap)'] = \
+            sum(self.inexact_drops)
         if self.live:
             values['frames dropped (handover queue full)'] = sum(self.queue_drops)
         if self.last_error:

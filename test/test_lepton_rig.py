@@ -1,0 +1,267 @@
+"""
+The real rig's path, against the wall-clock rig emulator (two Leptons on real time).
+
+Each camera of ``st_stereo.lepton.emulator.RigEmulator`` runs in its own process, free-running
+with its own phase and drift, and loses sync as a Lepton does when it is not clocked in time;
+the production ``SpiTransport`` reads it through a FIFO with ``os.read`` and the production
+``SMBus2Bus`` talks to its CCI through the ``smbus2`` stand-in. The driver node runs with real
+rclpy; a subscriber checks every published image against what the cameras sent.
+"""
+
+import contextlib
+import os
+import time
+
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from ros_helpers import new_context, spin_for
+from rig_helpers import check_stream, RigSubscriber, spi_parameters
+from rosgraph_msgs.msg import Clock
+from st_stereo.lepton import spi
+from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
+from st_stereo.lepton.emulator import CameraConfig, RigEmulator, TimedScene
+from st_stereo.lepton.fakes import FakeV4L2Board, install_fake_modules
+from st_stereo.lepton.reader import LeptonReader
+from st_stereo.nodes.driver_node import DriverNode
+from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.rectifier_node import RectifierNode
+from std_srvs.srv import Trigger
+
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+RUN_S = 20.0
+
+
+@contextlib.contextmanager
+def ros_nodes():
+    """A private rclpy context, its executor, and a function adding nodes to it."""
+    context, executor = new_context()
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+    try:
+        yield context, executor, add
+    finally:
+        for node in reversed(nodes):
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def spin_with_events(executor, seconds, events=()):
+    """Spin for ``seconds``; call each ``(offset_s, function)`` once its offset has passed."""
+    start = time.monotonic()
+    pending = sorted(events, key=lambda event: event[0])
+    while time.monotonic() - start < seconds:
+        while pending and time.monotonic() - start >= pending[0][0]:
+            pending.pop(0)[1]()
+        executor.spin_once(timeout_sec=0.01)
+    return start
+
+
+def first_arrival_after(got, moment):
+    """Monotonic time of the first left image received after ``moment``."""
+    return min((t for t, side in got.arrivals if side == 'left' and t > moment), default=None)
+
+
+# --- the emulator behaves like a Lepton ----------------------------------------------------
+@pytest.mark.timeout(120)
+def test_the_emulator_loses_sync_when_a_camera_is_not_clocked_in_time():
+    config = CameraConfig('left', seed=3)
+    with RigEmulator([config]) as rig, install_fake_modules(**rig.fake_modules()):
+        cci = LeptonCCI(SMBus2Bus(0))
+        cci.start('off')
+        transport = spi.SpiTransport(rig.devices['left'], 16_000_000)
+        reader = LeptonReader(transport, telemetry='off')
+        reader.resync()
+        frames = [reader.read_frame(1.0) for _ in range(10)]
+        assert all(frame is not None for frame in frames)
+        before = rig.cameras['left'].stats().get('sync_lost', 0)
+        # One blocking read of the other camera (113 ms) leaves this one unclocked.
+        time.sleep(0.12)
+        after_pause = [reader.read_frame(1.0) for _ in range(10)]
+        stats = rig.cameras['left'].stats()
+        assert stats['sync_lost'] > before
+        assert reader.counters.resyncs >= 2 and all(f is not None for f in after_pause[-5:])
+        # Pauses inside a frame (Python between the three 4 kB reads, longer than ~1.5 ms).
+        slow = SlowTransport(transport, pause_s=0.004)
+        slow_reader = LeptonReader(slow, telemetry='off')
+        slow_reader.resync()
+        got = [slow_reader.read_frame(0.5) for _ in range(4)]
+        stats = rig.cameras['left'].stats()
+        assert stats.get('sync_lost: pause inside a frame', 0) >= 1
+        assert sum(frame is not None for frame in got) == 0
+        transport.close()
+
+
+class SlowTransport:
+    """A transport that sleeps after every read: a host that cannot keep up inside a frame."""
+
+    def __init__(self, transport, pause_s):
+        self.transport, self.pause_s = transport, pause_s
+        self.packet_bytes = transport.packet_bytes
+        self.max_read_bytes = transport.max_read_bytes
+        self.seconds_per_byte = transport.seconds_per_byte
+
+    def read(self, nbytes):
+        data = self.transport.read(nbytes)
+        time.sleep(self.pause_s)
+        return data
+
+    def now(self):
+        return self.transport.now()
+
+    def idle(self, seconds):
+        self.transport.idle(seconds)
+
+    def wait(self, seconds):
+        self.transport.wait(seconds)
+
+
+# --- the driver and the pipeline on the emulated rig ----------------------------------------
+@pytest.mark.timeout(180)
+def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs():
+    with RigEmulator() as rig, install_fake_modules(**rig.fake_modules()), \
+            ros_nodes() as (context, executor, add):
+        subscriber = add(RigSubscriber(context))
+        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
+        start = spin_with_events(executor, RUN_S)
+        end = time.monotonic()
+        driver.destroy_node()
+        spin_for(executor, 0.3)
+        sent = rig.collect()
+        rate = check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
+        assert driver.exit_code == 0 and not driver.last_error
+        # Diagnostics saw both cameras at the unique rate, every pair with its skew.
+        level, _, values = subscriber.got.statuses['lepton_driver: left camera']
+        assert level == b'\x00' and float(values['unique frames per second']) >= 8.0
+        info = subscriber.got.pair_info[-1].status[0]
+        keys = {kv.key for kv in info.values}
+        assert {'skew (ms)', 'left acquisition stamp', 'right acquisition stamp',
+                'left ffc', 'right ffc'} <= keys
+        print(f'\ndriver on the emulated rig: {rate:.2f} pairs/s')
+
+
+@pytest.mark.timeout(180)
+def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_running():
+    with RigEmulator() as rig, install_fake_modules(**rig.fake_modules()), \
+            ros_nodes() as (context, executor, add):
+        subscriber = add(RigSubscriber(context))
+        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
+        add(RectifierNode(context=context))
+        matcher = add(MatcherNode(context=context))
+        start = spin_with_events(executor, RUN_S)
+        end = time.monotonic()
+        driver.destroy_node()
+        spin_for(executor, 0.3)
+        sent = rig.collect()
+        rate = check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
+        assert matcher.counts['matched'] >= 8.0 * (RUN_S - 5.0), 'the matcher did not run'
+        print(f'\npipeline on the emulated rig: {rate:.2f} pairs/s, '
+              f'{matcher.counts["matched"]} pairs matched')
+
+
+@pytest.mark.timeout(180)
+def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypatch):
+    import cv2
+    boards = {'/dev/video0': FakeV4L2Board('left', TimedScene(0.0, 1), 0.004, 30.0, True),
+              '/dev/video2': FakeV4L2Board('right', TimedScene(10.0, 2), 0.02, -20.0, True)}
+    monkeypatch.setattr(cv2, 'VideoCapture', lambda device, api=None: boards[device].open(
+        device, api))
+    parameters = [Parameter('source', value='purethermal'),
+                  Parameter('telemetry', value='footer')]
+    with ros_nodes() as (context, executor, add):
+        subscriber = add(RigSubscriber(context))
+        driver = add(DriverNode(context=context, parameter_overrides=parameters))
+        start = spin_with_events(executor, RUN_S)
+        end = time.monotonic()
+        driver.destroy_node()
+        spin_for(executor, 0.3)
+        sent = {'left': boards['/dev/video0'].sent, 'right': boards['/dev/video2'].sent}
+        check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
+
+
+# --- faults: slow boot, unplug / replug, wall-clock step, FFC failure --------------------------
+class SteppingClock(Node):
+    """Publishes /clock = monotonic time + an offset that a test can step."""
+
+    def __init__(self, context):
+        super().__init__('stepping_clock', context=context)
+        self.offset = 1.0e9 - time.monotonic()
+        self.publisher = self.create_publisher(Clock, '/clock', 10)
+        self.create_timer(0.005, self.tick)
+        self.tick()
+
+    def tick(self):
+        now = time.monotonic() + self.offset
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = int(now), int((now % 1.0) * 1e9)
+        self.publisher.publish(msg)
+
+
+@pytest.mark.timeout(240)
+def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatch):
+    configs = [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=30.0),
+               CameraConfig('right', seed=2, phase_s=0.015, drift_ppm=-20.0, disparity_px=10.0,
+                            start_booting=True, nack_s=1.5, boot_s=3.0)]
+    wall_offset = [0.0]
+    real_time = time.time
+    monkeypatch.setattr(time, 'time', lambda: real_time() + wall_offset[0])
+    with RigEmulator(configs) as rig, install_fake_modules(**rig.fake_modules()), \
+            ros_nodes() as (context, executor, add):
+        clock = add(SteppingClock(context))
+        spin_for(executor, 0.2)
+        subscriber = add(RigSubscriber(context))
+        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(
+            rig, use_sim_time=True)))
+        client = add(Node('ffc_client', context=context, namespace='stereo')).create_client(
+            Trigger, 'trigger_ffc')
+        marks, answers = {}, []
+
+        def mark(name, action=None):
+            def event():
+                marks[name] = time.monotonic()
+                if action is not None:
+                    action()
+            return event
+
+        def step_clocks():
+            clock.offset += 10.0
+            wall_offset[0] += 10.0
+
+        def call_ffc():
+            rig.cameras['right'].set_ffc_error(-2)
+            answers.append(client.call_async(Trigger.Request()))
+
+        events = [(9.0, mark('unplug', rig.cameras['left'].unplug)),
+                  (14.0, mark('replug', rig.cameras['left'].replug)),
+                  (20.0, mark('step', step_clocks)),
+                  (24.0, mark('ffc', call_ffc))]
+        start = spin_with_events(executor, 32.0, events)
+        end = time.monotonic()
+        driver.destroy_node()
+        spin_for(executor, 0.3)
+        sent = rig.collect()
+        got = subscriber.got
+        # Slow boot: the right camera NACKs for 1.5 s and boots in 3 s; pairs follow.
+        assert first_arrival_after(got, start) - start < 3.0 + 2.0
+        # Unplugged for 5 s: pairs resume within 2 s of the replug; the node never died.
+        assert first_arrival_after(got, marks['replug']) - marks['replug'] < 2.0
+        assert driver.exit_code == 0 and not driver.last_error
+        # The 10 s step moves stamps by 10 s and changes nothing else: every image sent once,
+        # one left and one right per stamp, pairs at the full rate after the step.
+        check_stream(got, sent, 8.0, (marks['step'], marks['ffc']))
+        stamps = sorted(stamp for stamp, _, _ in got.images['left'])
+        gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]) if b - a > 0.5e9)
+        # The left camera's FFC (23 frozen core frames are no new frames), the unplugged
+        # camera, and the step.
+        assert len(gaps) == 3, gaps
+        assert gaps[0] < 1.5e9 and 5.0e9 < gaps[1] < 7.0e9 and 10.0e9 < gaps[2] < 10.3e9
+        # FFC: the right camera's command fails: the service says so, the left one ran.
+        answer = answers[0].result()
+        assert answer is not None and not answer.success and 'right' in answer.message
+        assert rig.cameras['left'].stats().get('ffc', 0) == 1
+        check_stream(got, sent, 8.0, (marks['ffc'] + 2.0, end))
