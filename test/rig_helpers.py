@@ -5,12 +5,12 @@ import dataclasses
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from st_stereo.lepton.emulator import pixels_digest
-import numpy as np
 
 UNIQUE_PERIOD_S = 3 / 26.4
 

@@ -16,8 +16,8 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ros_helpers import new_context, spin_for
 from rig_helpers import check_stream, RigSubscriber, spi_parameters
+from ros_helpers import new_context, spin_for
 from rosgraph_msgs.msg import Clock
 from st_stereo.lepton import spi
 from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
@@ -35,7 +35,7 @@ RUN_S = 20.0
 
 @contextlib.contextmanager
 def ros_nodes():
-    """A private rclpy context, its executor, and a function adding nodes to it."""
+    """Yield a private rclpy context, its executor, and a function adding nodes to it."""
     context, executor = new_context()
     nodes = []
 

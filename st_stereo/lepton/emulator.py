@@ -103,7 +103,7 @@ class TimedScene:
         self.texture_x = np.arange(200) - 60.0
 
     def frame(self, t, index):
-        """Counts (float) at scene time ``t`` seconds; ``index`` seeds the temporal noise."""
+        """Return counts (float) at scene time ``t`` s; ``index`` seeds the temporal noise."""
         x = self.x + self.shift
         columns = np.interp(x[0], self.texture_x, np.arange(200))
         lo = np.clip(np.floor(columns).astype(int), 0, 198)
@@ -261,7 +261,7 @@ class _Camera:
         return self.rng.integers(0, 256, PACKET * packets, dtype=np.uint8).tobytes()
 
     def _next_transfer(self, now):
-        """The bytes the host's next transfer clocks out (decided now)."""
+        """Return the bytes the host's next transfer clocks out (decided now)."""
         n = self.transfer_packets
         if not self.powered:
             return self.floating
@@ -529,7 +529,7 @@ class RigEmulator:
         return self.sent
 
     def fake_modules(self):
-        """The ``spidev`` and ``smbus2`` stand-ins wired to these cameras."""
+        """Return the ``spidev`` and ``smbus2`` stand-ins wired to these cameras."""
         from st_stereo.lepton.fakes import fake_smbus2_module, fake_spidev_module
         return {'spidev': fake_spidev_module(), 'smbus2': fake_smbus2_module(self.buses)}
 

@@ -57,7 +57,7 @@ class FakeCciRegisters:
             raise OSError(errno.EREMOTEIO, 'Remote I/O error (no acknowledge from 0x2A)')
 
     def power_on_defaults(self):
-        """Registers and settings after a power-up or reboot (telemetry off)."""
+        """Restore the registers and settings of a power-up or reboot (telemetry off)."""
         self.values[CMD_TELEMETRY_ENABLE] = [0, 0]
         self.values[CMD_TELEMETRY_LOCATION] = [0, 0]
         self._busy_left = 0
@@ -133,7 +133,7 @@ class FakeCciRegisters:
 # --- module stand-ins ------------------------------------------------------------------------
 def fake_spidev_module(opened=None):
     """
-    A ``spidev`` stand-in: ``SpiDev`` accepts ``open``/``open_path`` and the settings.
+    Return a ``spidev`` stand-in: ``SpiDev`` takes ``open``/``open_path`` and the settings.
 
     ``opened`` (a list) receives ``(path or (bus, chip), settings dict)`` of every device closed,
     so tests can check what the transport configured.
@@ -145,7 +145,7 @@ def fake_spidev_module(opened=None):
             self.mode, self.max_speed_hz, self.bits_per_word = 0, 500000, 8
             self.target = None
 
-        def open(self, bus, chip):
+        def open(self, bus, chip):  # noqa: A003 - the real module's name
             self.target = (bus, chip)
 
         def open_path(self, path):
@@ -164,7 +164,7 @@ def fake_spidev_module(opened=None):
 
 def fake_smbus2_module(buses):
     """
-    A ``smbus2`` stand-in whose ``SMBus(n)`` talks to ``buses[n]``.
+    Return a ``smbus2`` stand-in whose ``SMBus(n)`` talks to ``buses[n]``.
 
     ``buses[n]`` has ``write_words(register, words)`` and ``read_words(register, count)`` (a
     ``FakeCciRegisters`` or an emulated camera's proxy); a missing bus number is the
@@ -259,19 +259,19 @@ class FakeV4L2Board:
         self._cache = (None, None)
 
     def unplug(self):
-        """The board disappears (reads fail, the device cannot be opened)."""
+        """Take the board away (reads fail, the device cannot be opened)."""
         self.plugged = False
 
     def replug(self):
-        """The board is back."""
+        """Bring the board back."""
         self.plugged = True
 
-    def open(self, device, api=None):
-        """What ``cv2.VideoCapture(device, cv2.CAP_V4L2)`` returns for this board."""
+    def open(self, device, api=None):  # noqa: A003 - as cv2.VideoCapture opens
+        """Return what ``cv2.VideoCapture(device, cv2.CAP_V4L2)`` gives for this board."""
         return _FakeV4L2Capture(self)
 
     def frame_at(self, core):
-        """The Y16 frame of core frame ``core`` (records the unique frame once)."""
+        """Return the Y16 frame of core frame ``core`` (records the unique frame once)."""
         from st_stereo.lepton.emulator import pixels_digest, SentFrame
         from st_stereo.lepton.telemetry import encode_telemetry_row_a
         import numpy as np
@@ -302,7 +302,7 @@ class _FakeV4L2Capture:
     def isOpened(self):  # noqa: N802 - OpenCV's name
         return self.opened
 
-    def set(self, prop, value):
+    def set(self, prop, value):  # noqa: A003 - OpenCV's name
         return True
 
     def read(self):

@@ -43,7 +43,7 @@ def read_size_for(buffer_bytes, packet_bytes=RAW14_PACKET_BYTES):
 
 
 def bufsiz_warning(buffer_bytes):
-    """The warning for a spidev buffer smaller than one frame, or '' when it holds one."""
+    """Return the warning for a spidev buffer under one frame, or '' when it holds one."""
     if buffer_bytes >= FRAME_BYTES:
         return ''
     reads = -(-FRAME_BYTES // read_size_for(buffer_bytes))

@@ -222,7 +222,7 @@ class DriverNode(Node):
         self._fail(f'{side} camera thread stopped: {type(error).__name__}: {error}')
 
     def _fail(self, message):
-        """A camera cannot recover: say why and end the node (non-zero exit, for respawn)."""
+        """End the node (non-zero exit, for respawn): a camera cannot recover; say why."""
         self.last_error = message
         self.exit_code = 1
         self.get_logger().fatal(f'{message}; shutting down')
