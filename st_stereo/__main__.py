@@ -4,4 +4,5 @@ import sys
 
 from st_stereo.cli import main
 
-sys.exit(main())
+if __name__ == '__main__':      # spawned helper processes import this module too
+    sys.exit(main())

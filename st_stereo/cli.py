@@ -393,6 +393,8 @@ def build_parser():
     add_sim_parser(sub)
     from st_stereo.tools.calibrate import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
+    from st_stereo.tools.rig_bench import add_parser as add_rig_bench_parser
+    add_rig_bench_parser(sub)
 
     p = sub.add_parser('demo', help='run ST on a simulated pair sequence (the main job)')
     p.add_argument('--frames', type=int, default=40)

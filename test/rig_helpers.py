@@ -1,62 +1,8 @@
 """Running the driver (or the whole pipeline) against the wall-clock rig emulator."""
 
 import collections
-import dataclasses
-import time
 
-from diagnostic_msgs.msg import DiagnosticArray
-import numpy as np
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
-from st_stereo.lepton.emulator import pixels_digest
-
-UNIQUE_PERIOD_S = 3 / 26.4
-
-
-@dataclasses.dataclass
-class Published:
-    """What a subscriber received from the driver."""
-
-    images: dict = dataclasses.field(default_factory=lambda: {'left': [], 'right': []})
-    pair_info: list = dataclasses.field(default_factory=list)
-    statuses: dict = dataclasses.field(default_factory=dict)
-    arrivals: list = dataclasses.field(default_factory=list)   # (monotonic, side)
-
-
-class RigSubscriber(Node):
-    """Records every raw image (stamp, digest of its pixels), pair_info and diagnostics."""
-
-    def __init__(self, context, namespace='stereo'):
-        super().__init__('rig_subscriber', context=context, namespace=namespace)
-        self.got = Published()
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        for side in ('left', 'right'):
-            self.create_subscription(Image, f'{side}/image_raw',
-                                     lambda msg, side=side: self._on_image(side, msg), qos)
-        self.create_subscription(DiagnosticArray, 'pair_info', self.got.pair_info.append, qos)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-
-    def _on_image(self, side, msg):
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        pixels = np.frombuffer(bytes(msg.data), dtype='<u2').reshape(msg.height, msg.width)
-        self.got.images[side].append((stamp, pixels_digest(pixels), msg.header.frame_id))
-        self.got.arrivals.append((time.monotonic(), side))
-
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            self.got.statuses[status.name] = (status.level, status.message,
-                                              {kv.key: kv.value for kv in status.values})
-
-
-def spi_parameters(rig, **extra):
-    """Driver parameters for the emulated rig on SPI (CCI on buses 0 and 1)."""
-    values = {'source': 'spi', 'left_device': rig.devices['left'],
-              'right_device': rig.devices['right'], 'telemetry': 'footer',
-              'left_i2c_bus': 0, 'right_i2c_bus': 1}
-    values.update(extra)
-    return [Parameter(name, value=value) for name, value in values.items()]
+from st_stereo.tools.rig_bench import UNIQUE_PERIOD_S
 
 
 def pairs_of(got):

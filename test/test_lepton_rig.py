@@ -16,7 +16,7 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rig_helpers import check_stream, RigSubscriber, spi_parameters
+from rig_helpers import check_stream
 from ros_helpers import new_context, spin_for
 from rosgraph_msgs.msg import Clock
 from st_stereo.lepton import spi
@@ -27,6 +27,7 @@ from st_stereo.lepton.reader import LeptonReader
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
+from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters
 from std_srvs.srv import Trigger
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -265,3 +266,28 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         assert answer is not None and not answer.success and 'right' in answer.message
         assert rig.cameras['left'].stats().get('ffc', 0) == 1
         check_stream(got, sent, 8.0, (marks['ffc'] + 2.0, end))
+
+
+# --- memory -----------------------------------------------------------------------------------
+@pytest.mark.timeout(180)
+def test_stereo_pipeline_on_sim_does_not_grow():
+    # The simulated cameras used to keep every frame they sent (9.6 kB each, 0.17 MB/s for
+    # the pair): a trend that a minute shows. The one-hour run is `st-stereo soak`.
+    import psutil
+    from st_stereo.tools.rig_bench import rss_trend
+    process = psutil.Process()
+    samples = []
+    with ros_nodes() as (context, executor, add):
+        driver = add(DriverNode(context=context,
+                                parameter_overrides=[Parameter('source', value='sim')]))
+        add(RectifierNode(context=context))
+        add(MatcherNode(context=context))
+        start = time.monotonic()
+        while time.monotonic() - start < 45.0:
+            spin_for(executor, 1.0)
+            samples.append((time.monotonic() - start, process.memory_info().rss / 2 ** 20))
+        assert driver.published >= 8.0 * 40
+    slope = rss_trend(samples, warmup_s=10.0)
+    print(f'\nRSS {samples[0][1]:.1f} -> {samples[-1][1]:.1f} MiB, trend {slope * 3600:+.1f} '
+          f'MiB/hour')
+    assert slope < 0.03, f'RSS grows {slope:.3f} MiB/s'

@@ -84,6 +84,7 @@ class CameraConfig:
     start_booting: bool = False      # powered up when the emulator starts (slow boot)
     disparity_px: float = 0.0        # the scene shifted left by this much (a right camera)
     serial: int = 0x1234
+    crc_fault_rate: float = 0.0      # probability per core frame of one packet with a bad CRC
 
 
 class TimedScene:
@@ -255,7 +256,14 @@ class _Camera:
             self.stats['unique_sent'] += 1
         self.stats['frames_started'] += 1
         blob = encode_frame_packets(payloads)
-        return [blob[i * PACKET:(i + 1) * PACKET] for i in range(layout.packets)]
+        packets = [blob[i * PACKET:(i + 1) * PACKET] for i in range(layout.packets)]
+        if self.config.crc_fault_rate and self.rng.random() < self.config.crc_fault_rate:
+            position = int(self.rng.integers(1, layout.packets))
+            damaged = bytearray(packets[position])
+            damaged[3] ^= 0x5A
+            packets[position] = bytes(damaged)
+            self.stats['crc_faults'] += 1
+        return packets
 
     def _garbage(self, packets):
         return self.rng.integers(0, 256, PACKET * packets, dtype=np.uint8).tobytes()

@@ -25,8 +25,9 @@ FRAME_BYTES = 63 * RAW14_PACKET_BYTES
 RECOMMENDED_BUFSIZ = 65536
 
 
-def spidev_buffer_size(path=BUFSIZ_PATH, default=4096):
+def spidev_buffer_size(path=None, default=4096):
     """Return the spidev buffer size in bytes (``bufsiz`` module parameter) or the default."""
+    path = BUFSIZ_PATH if path is None else path
     try:
         with open(path, encoding='ascii') as stream:
             return int(stream.read().strip())
@@ -66,8 +67,8 @@ class SpiTransport:
         aux SPI: no mode 3).
     speed_hz : int
         SPI clock, 4 to 20 MHz (see ``MIN_HZ``).
-    bufsiz_path : str
-        Where the spidev buffer size is read (``BUFSIZ_PATH``; 4096 when absent).
+    bufsiz_path : str, optional
+        Where the spidev buffer size is read (default ``BUFSIZ_PATH``; 4096 when absent).
 
     Attributes
     ----------
@@ -78,7 +79,7 @@ class SpiTransport:
 
     packet_bytes = RAW14_PACKET_BYTES
 
-    def __init__(self, device='/dev/spidev0.0', speed_hz=16_000_000, bufsiz_path=BUFSIZ_PATH):
+    def __init__(self, device='/dev/spidev0.0', speed_hz=16_000_000, bufsiz_path=None):
         if not MIN_HZ <= speed_hz <= MAX_HZ:
             raise ValueError(f'SPI clock: expected {MIN_HZ} to {MAX_HZ} Hz, got {speed_hz} (a '
                              f'63-packet frame must be clocked out well within one 37.9 ms '
