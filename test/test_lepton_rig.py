@@ -18,16 +18,15 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rig_helpers import check_stream
 from ros_helpers import new_context, spin_for
-from rosgraph_msgs.msg import Clock
 from st_stereo.lepton import spi
 from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
 from st_stereo.lepton.emulator import CameraConfig, RigEmulator, TimedScene
-from st_stereo.lepton.fakes import FakeV4L2Board, install_fake_modules
+from st_stereo.lepton.fakes import FakeV4L2Board
 from st_stereo.lepton.reader import LeptonReader
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters
+from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters, SteppingClock
 from std_srvs.srv import Trigger
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -72,7 +71,7 @@ def first_arrival_after(got, moment):
 @pytest.mark.timeout(120)
 def test_the_emulator_loses_sync_when_a_camera_is_not_clocked_in_time():
     config = CameraConfig('left', seed=3)
-    with RigEmulator([config]) as rig, install_fake_modules(**rig.fake_modules()):
+    with RigEmulator([config]) as rig, rig.installed():
         cci = LeptonCCI(SMBus2Bus(0))
         cci.start('off')
         transport = spi.SpiTransport(rig.devices['left'], 16_000_000)
@@ -124,11 +123,13 @@ class SlowTransport:
 
 # --- the driver and the pipeline on the emulated rig ----------------------------------------
 @pytest.mark.timeout(180)
-def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs():
-    with RigEmulator() as rig, install_fake_modules(**rig.fake_modules()), \
+@pytest.mark.parametrize('reader', ['process', 'thread'])
+def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader):
+    with RigEmulator() as rig, rig.installed(), \
             ros_nodes() as (context, executor, add):
         subscriber = add(RigSubscriber(context))
-        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
+        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(
+            rig, spi_reader=reader)))
         start = spin_with_events(executor, RUN_S)
         end = time.monotonic()
         driver.destroy_node()
@@ -143,12 +144,12 @@ def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs():
         keys = {kv.key for kv in info.values}
         assert {'skew (ms)', 'left acquisition stamp', 'right acquisition stamp',
                 'left ffc', 'right ffc'} <= keys
-        print(f'\ndriver on the emulated rig: {rate:.2f} pairs/s')
+        print(f'\ndriver on the emulated rig, spi_reader {reader}: {rate:.2f} pairs/s')
 
 
 @pytest.mark.timeout(180)
 def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_running():
-    with RigEmulator() as rig, install_fake_modules(**rig.fake_modules()), \
+    with RigEmulator() as rig, rig.installed(), \
             ros_nodes() as (context, executor, add):
         subscriber = add(RigSubscriber(context))
         driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
@@ -186,23 +187,6 @@ def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypa
 
 
 # --- faults: slow boot, unplug / replug, wall-clock step, FFC failure --------------------------
-class SteppingClock(Node):
-    """Publishes /clock = monotonic time + an offset that a test can step."""
-
-    def __init__(self, context):
-        super().__init__('stepping_clock', context=context)
-        self.offset = 1.0e9 - time.monotonic()
-        self.publisher = self.create_publisher(Clock, '/clock', 10)
-        self.create_timer(0.005, self.tick)
-        self.tick()
-
-    def tick(self):
-        now = time.monotonic() + self.offset
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = int(now), int((now % 1.0) * 1e9)
-        self.publisher.publish(msg)
-
-
 @pytest.mark.timeout(240)
 def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatch):
     configs = [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=30.0),
@@ -211,7 +195,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
     wall_offset = [0.0]
     real_time = time.time
     monkeypatch.setattr(time, 'time', lambda: real_time() + wall_offset[0])
-    with RigEmulator(configs) as rig, install_fake_modules(**rig.fake_modules()), \
+    with RigEmulator(configs) as rig, rig.installed(), \
             ros_nodes() as (context, executor, add):
         clock = add(SteppingClock(context))
         spin_for(executor, 0.2)
@@ -252,6 +236,13 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         # Unplugged for 5 s: pairs resume within 2 s of the replug; the node never died.
         assert first_arrival_after(got, marks['replug']) - marks['replug'] < 2.0
         assert driver.exit_code == 0 and not driver.last_error
+        # Diagnostics: ERROR for the left camera while it was gone, OK again after.
+        left = [(t, level) for t, name, level in got.history
+                if name == 'lepton_driver: left camera']
+        assert any(level == b'\x02' for t, level in left
+                   if marks['unplug'] + 2.0 < t < marks['replug'])
+        assert all(level == b'\x00' for t, level in left
+                   if marks['replug'] + 3.0 < t < marks['step'])
         # The 10 s step moves stamps by 10 s and changes nothing else: every image sent once,
         # one left and one right per stamp, pairs at the full rate after the step.
         check_stream(got, sent, 8.0, (marks['step'], marks['ffc']))
@@ -291,3 +282,27 @@ def test_stereo_pipeline_on_sim_does_not_grow():
     print(f'\nRSS {samples[0][1]:.1f} -> {samples[-1][1]:.1f} MiB, trend {slope * 3600:+.1f} '
           f'MiB/hour')
     assert slope < 0.03, f'RSS grows {slope:.3f} MiB/s'
+
+
+@pytest.mark.timeout(120)
+def test_lepton_driver_exits_non_zero_when_a_camera_cannot_recover():
+    # A real `lepton_driver` process (launch's respawn acts on its exit code): the right
+    # camera is unplugged for good; after give_up_after seconds without a frame it exits.
+    import subprocess
+    import sys
+    with RigEmulator() as rig:
+        rig.cameras['right'].unplug()
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [str(rig.module_dir)] + [p for p in sys.path if p]))
+        command = [sys.executable, '-c', 'import sys; from st_stereo.nodes.driver_node import '
+                   'main; sys.exit(main())', '--ros-args',
+                   '-p', 'source:=spi', '-p', f'left_device:={rig.devices["left"]}',
+                   '-p', f'right_device:={rig.devices["right"]}', '-p', 'left_i2c_bus:=0',
+                   '-p', 'right_i2c_bus:=1', '-p', 'give_up_after:=4.0',
+                   '-p', 'boot_timeout:=1.0']
+        started = time.monotonic()
+        result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
+        elapsed = time.monotonic() - started
+    assert result.returncode != 0, result.stderr[-2000:]
+    assert 'right camera: no frame for' in result.stderr, result.stderr[-2000:]
+    assert 4.0 < elapsed < 30.0

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 from st_stereo.lepton import purethermal
-from st_stereo.lepton.spi import read_size_for, spidev_buffer_size, SpiTransport
+from st_stereo.lepton.spi import (bufsiz_warning, read_size_for, spidev_buffer_size,
+                                  SpiTransport)
 
 
 def test_spidev_buffer_and_read_size(tmp_path):
@@ -19,8 +20,47 @@ def test_spidev_buffer_and_read_size(tmp_path):
 def test_spi_transport_errors_are_clear():
     with pytest.raises(ValueError, match='SPI clock'):
         SpiTransport('/dev/spidev0.0', speed_hz=40_000_000)
+    # 2 MHz cannot clock a 63-packet frame out within one 37.9 ms core period.
+    with pytest.raises(ValueError, match='within one 37.9 ms core period'):
+        SpiTransport('/dev/spidev0.0', speed_hz=2_000_000)
     with pytest.raises(FileNotFoundError, match='/dev/spidev9.9: no such SPI device'):
         SpiTransport('/dev/spidev9.9')
+
+
+def test_bufsiz_below_one_frame_warns_with_the_module_option():
+    assert 'spidev.bufsiz=65536' in bufsiz_warning(4096)
+    assert 'options spidev bufsiz=65536' in bufsiz_warning(4096)
+    assert '3 reads' in bufsiz_warning(4096)
+    assert bufsiz_warning(65536) == ''
+
+
+def test_spi_transport_opens_a_udev_symlink_by_path_and_never_loses_bytes(tmp_path,
+                                                                          monkeypatch):
+    import os
+    import sys
+    from st_stereo.lepton.fakes import fake_spidev_module
+    closed = []
+    monkeypatch.setitem(sys.modules, 'spidev', fake_spidev_module(closed))
+    fifo = tmp_path / 'spidev3.1'
+    os.mkfifo(fifo)
+    link = tmp_path / 'lepton_left'             # as a udev rule names it: no bus.chip in it
+    link.symlink_to(fifo)
+    writer = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)
+    bufsiz = tmp_path / 'bufsiz'
+    bufsiz.write_text('65536\n')
+    transport = SpiTransport(str(link), 8_000_000, bufsiz_path=bufsiz)
+    assert transport.warning == '' and transport.max_read_bytes == 399 * 164
+    packets = bytes(i % 251 for i in range(164 * 3))           # three packets
+    os.write(writer, packets[:100])              # a short read: a partial packet waits
+    os.write(writer, packets[100:400])
+    first = transport.read(164 * 3)
+    os.write(writer, packets[400:])
+    second = transport.read(164 * 3)
+    assert first + second == packets and len(first) % 164 == 0
+    transport.close()
+    transport.close()                            # idempotent
+    os.close(writer)
+    assert closed == [(str(link), {'mode': 3, 'max_speed_hz': 8_000_000, 'bits_per_word': 8})]
 
 
 class FakeUsbDevice:

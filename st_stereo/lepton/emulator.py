@@ -27,20 +27,27 @@ What a camera does (Lepton 2 datasheet behaviour, ``../shared/notes/lepton.md``)
 
 ``RigEmulator`` starts both cameras, makes the FIFOs, and records every unique frame each
 camera sent (a hash of its pixels and its acquisition time) so tests can check what the driver
-published against what the cameras sent.
+published against what the cameras sent. ``RigEmulator.installed()`` puts stand-in ``spidev``
+and ``smbus2`` modules first on ``sys.path`` (a directory the emulator writes), so the driver
+finds them in its own process and in the reader processes it spawns; each ``SMBus(n)`` opens
+its own connection to camera ``n``'s CCI socket.
 """
 
 import collections
+import contextlib
 import dataclasses
 import errno
 import fcntl
 import hashlib
+import json
 import math
 import multiprocessing
+from multiprocessing.connection import Client, Listener
 import os
 import pathlib
 import queue
 import shutil
+import sys
 import tempfile
 import termios
 import threading
@@ -60,6 +67,21 @@ F_SETPIPE_SZ = 1031
 PIPE_BYTES = 16384                   # a little over one 63-packet frame (10,332 bytes)
 FFC_CORE_FRAMES = 23
 FFC_LEVEL_JUMP = 25
+AUTHKEY = b'st_stereo rig emulator'
+
+_SHIM_SPIDEV = '''"""spidev stand-in of the wall-clock rig emulator (tests and benchmarks only)."""
+from st_stereo.lepton.fakes import fake_spidev_module as _make
+SpiDev = _make().SpiDev
+'''
+_SHIM_SMBUS2 = '''"""smbus2 stand-in of the wall-clock rig emulator (tests and benchmarks only)."""
+import json as _json
+import pathlib as _pathlib
+from st_stereo.lepton.emulator import RemoteCci as _RemoteCci
+from st_stereo.lepton.fakes import fake_smbus2_module as _make
+_BUSES = _json.loads(_pathlib.Path(__file__).with_name('rig_buses.json').read_text())
+_module = _make({int(n): (lambda a=a: _RemoteCci(a)) for n, a in _BUSES.items()})
+SMBus, i2c_msg = _module.SMBus, _module.i2c_msg
+'''
 
 
 def pixels_digest(pixels):
@@ -132,6 +154,7 @@ class _Camera:
         # and the FIFO holds a little over one).
         self.transfer_packets = min(63, max(1, config.transfer_bytes // PACKET))
         self.lock = threading.Lock()
+        self.cci_lock = threading.Lock()      # one register file, several I2C clients
         self.scene = TimedScene(config.disparity_px, config.seed)
         self.registers = FakeCciRegisters(self, busy_polls=2)
         self.rng = np.random.default_rng(config.seed + 1000)
@@ -346,22 +369,27 @@ class _Camera:
         self.consumed = self.written
 
 
-def _serve(camera, connection, stop):
-    """Answer I2C transfers and control requests from the parent (a thread of the process)."""
+def _serve(camera, connection, stop, control=True):
+    """Answer I2C transfers (and, from the parent, control requests): a thread per client."""
     registers = camera.registers
     while not stop.is_set():
         try:
             request = connection.recv()
         except (EOFError, OSError):
-            stop.set()
+            if control:
+                stop.set()
             return
         kind = request[0]
         try:
             if kind == 'read':
-                reply = ('ok', registers.read_words(request[1], request[2]))
+                with camera.cci_lock:
+                    reply = ('ok', registers.read_words(request[1], request[2]))
             elif kind == 'write':
-                registers.write_words(request[1], request[2])
+                with camera.cci_lock:
+                    registers.write_words(request[1], request[2])
                 reply = ('ok', None)
+            elif not control:
+                reply = ('error', f"{kind!r} is a request of the emulator's parent only")
             elif kind == 'unplug':
                 camera.unplug()
                 reply = ('ok', None)
@@ -381,22 +409,79 @@ def _serve(camera, connection, stop):
                 reply = ('error', f'unknown request {kind!r}')
         except OSError as error:
             reply = ('nack', str(error))
-        connection.send(reply)
+        try:
+            connection.send(reply)
+        except OSError:
+            return
 
 
-def _camera_main(config, fifo, connection, records, epoch):
+def _accept(camera, listener, stop):
+    """Serve each I2C client (an ``SMBus`` of any process) on its own thread."""
+    while not stop.is_set():
+        try:
+            connection = listener.accept()
+        except (OSError, EOFError):
+            return
+        threading.Thread(target=_serve, args=(camera, connection, stop, False),
+                         daemon=True).start()
+
+
+def _camera_main(config, fifo, connection, records, epoch, address):
     """Entry point of a camera process."""
     fd = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)     # never blocks, never EOF for the host
     fcntl.fcntl(fd, F_SETPIPE_SZ, PIPE_BYTES)
     camera = _Camera(config, fd, records, epoch)
     stop = threading.Event()
+    listener = Listener(address, family='AF_UNIX', authkey=AUTHKEY)
+    threading.Thread(target=_accept, args=(camera, listener, stop), daemon=True).start()
     server = threading.Thread(target=_serve, args=(camera, connection, stop), daemon=True)
     server.start()
     while not stop.is_set():
         now = time.monotonic()
         camera.step(now)
         time.sleep(0.0002)
+    listener.close()
     os.close(fd)
+
+
+class RemoteCci:
+    """An I2C client of one emulated camera's CCI (what the ``smbus2`` stand-in talks to)."""
+
+    def __init__(self, address):
+        self.address = address
+        self._connection = None
+        self._lock = threading.Lock()
+
+    def _request(self, *request):
+        with self._lock:
+            try:
+                if self._connection is None:
+                    self._connection = Client(self.address, family='AF_UNIX', authkey=AUTHKEY)
+                self._connection.send(request)
+                status, value = self._connection.recv()
+            except (OSError, EOFError) as error:
+                self._connection = None
+                raise OSError(errno.ENODEV, f'emulated I2C bus gone ({error})') from None
+        if status == 'nack':
+            raise OSError(errno.EREMOTEIO, f'Remote I/O error ({value})')
+        if status != 'ok':
+            raise RuntimeError(f'emulated camera at {self.address}: {value}')
+        return value
+
+    def read_words(self, register, count):
+        """I2C read of ``count`` words."""
+        return self._request('read', register, count)
+
+    def write_words(self, register, words):
+        """I2C write of words."""
+        self._request('write', register, list(words))
+
+    def close(self):
+        """Close the connection."""
+        with self._lock:
+            if self._connection is not None:
+                self._connection.close()
+                self._connection = None
 
 
 class CameraProxy:
@@ -466,7 +551,9 @@ class RigEmulator:
     devices : dict
         Camera name -> FIFO path (the driver's ``<side>_device``).
     buses : dict
-        I2C bus number (0 left, 1 right) -> ``CameraProxy`` (for ``fake_smbus2_module``).
+        I2C bus number (0 left, 1 right) -> the camera's CCI socket address.
+    module_dir : pathlib.Path
+        The directory of the ``spidev`` and ``smbus2`` stand-ins (see ``installed``).
 
     """
 
@@ -495,18 +582,24 @@ class RigEmulator:
             if fifo.exists():
                 fifo.unlink()
             os.mkfifo(fifo)
+            address = str(self.directory / f'cci-{index}.socket')
             parent, child = context.Pipe()
             process = context.Process(target=_camera_main, name=f'lepton-{config.name}',
-                                      args=(config, str(fifo), child, self._records, epoch),
-                                      daemon=True)
+                                      args=(config, str(fifo), child, self._records, epoch,
+                                            address), daemon=True)
             process.start()
             self._processes.append(process)
             proxy = CameraProxy(config.name, parent)
             self.cameras[config.name] = proxy
             self.devices[config.name] = str(fifo)
-            self.buses[index] = proxy
+            self.buses[index] = address
         for proxy in self.cameras.values():
             proxy.stats()                 # wait until each process answers
+        self.module_dir = self.directory / 'modules'
+        self.module_dir.mkdir(exist_ok=True)
+        (self.module_dir / 'spidev.py').write_text(_SHIM_SPIDEV)
+        (self.module_dir / 'smbus2.py').write_text(_SHIM_SMBUS2)
+        (self.module_dir / 'rig_buses.json').write_text(json.dumps(self.buses))
         return self
 
     def __exit__(self, *exc):
@@ -536,10 +629,24 @@ class RigEmulator:
             self.sent[name].append(SentFrame(unique, stamp, digest, ffc))
         return self.sent
 
-    def fake_modules(self):
-        """Return the ``spidev`` and ``smbus2`` stand-ins wired to these cameras."""
-        from st_stereo.lepton.fakes import fake_smbus2_module, fake_spidev_module
-        return {'spidev': fake_spidev_module(), 'smbus2': fake_smbus2_module(self.buses)}
+    @contextlib.contextmanager
+    def installed(self):
+        """
+        Make ``import spidev`` and ``import smbus2`` find this rig's stand-ins in the block.
+
+        The stand-ins' directory goes first on ``sys.path`` (reader processes spawned in the
+        block inherit it); modules already imported under those names are set aside.
+        """
+        saved = {name: sys.modules.pop(name) for name in ('spidev', 'smbus2')
+                 if name in sys.modules}
+        sys.path.insert(0, str(self.module_dir))
+        try:
+            yield self
+        finally:
+            sys.path.remove(str(self.module_dir))
+            for name in ('spidev', 'smbus2'):
+                sys.modules.pop(name, None)
+            sys.modules.update(saved)
 
 
 @dataclasses.dataclass(frozen=True)

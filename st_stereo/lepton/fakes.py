@@ -9,12 +9,11 @@ Fakes of the hardware around a Lepton, for tests and benchmarks only (never used
   unchanged against the wall-clock rig emulator (``st_stereo.lepton.emulator``): spidev
   configuration succeeds (the data comes through ``os.read`` on the emulator's FIFO), and I2C
   transfers go to the emulated camera's register file.
-- ``install_fake_modules``: puts them in ``sys.modules`` for the duration of a ``with`` block.
+  ``RigEmulator.installed()`` puts them first on ``sys.path``.
+- ``FakeV4L2Board``: a PureThermal board's V4L2 stream on the wall clock.
 """
 
-import contextlib
 import errno
-import sys
 import types
 
 from st_stereo.lepton.cci import (CMD_AGC_ENABLE, CMD_FPA_TEMPERATURE, CMD_PING, CMD_REBOOT,
@@ -167,8 +166,9 @@ def fake_smbus2_module(buses):
     Return a ``smbus2`` stand-in whose ``SMBus(n)`` talks to ``buses[n]``.
 
     ``buses[n]`` has ``write_words(register, words)`` and ``read_words(register, count)`` (a
-    ``FakeCciRegisters`` or an emulated camera's proxy); a missing bus number is the
-    ``FileNotFoundError`` the real module raises for a missing ``/dev/i2c-N``.
+    ``FakeCciRegisters``), or is a function returning such an object for each ``SMBus`` opened
+    (an emulated camera's ``RemoteCci``); a missing bus number is the ``FileNotFoundError`` the
+    real module raises for a missing ``/dev/i2c-N``.
     """
     module = types.ModuleType('smbus2')
 
@@ -194,7 +194,8 @@ def fake_smbus2_module(buses):
             if number not in buses:
                 raise FileNotFoundError(errno.ENOENT, f'No such file or directory: '
                                         f"'/dev/i2c-{number}'")
-            self.target = buses[number]
+            target = buses[number]
+            self.target = target() if callable(target) else target
 
         def i2c_rdwr(self, *messages):
             first = messages[0]
@@ -210,26 +211,14 @@ def fake_smbus2_module(buses):
             read.result = [byte for word in words for byte in ((word >> 8) & 0xFF, word & 0xFF)]
 
         def close(self):
+            close = getattr(self.target, 'close', None)
+            if close is not None:
+                close()
             self.target = None
 
     module.i2c_msg = i2c_msg
     module.SMBus = SMBus
     return module
-
-
-@contextlib.contextmanager
-def install_fake_modules(**modules):
-    """Put module stand-ins (``spidev=..., smbus2=...``) in ``sys.modules`` inside the block."""
-    saved = {name: sys.modules.get(name) for name in modules}
-    sys.modules.update(modules)
-    try:
-        yield
-    finally:
-        for name, module in saved.items():
-            if module is None:
-                sys.modules.pop(name, None)
-            else:
-                sys.modules[name] = module
 
 
 # --- PureThermal / V4L2 on the wall clock ----------------------------------------------------

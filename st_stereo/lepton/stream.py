@@ -10,10 +10,16 @@ camera fails (an ``OSError``, a CCI error, a PureThermal error, or no frame for
 from ``backoff_s`` up to ``max_backoff_s``; every restart and its reason are counted. Any
 other exception is a bug, not a camera fault: the stream stops and calls ``on_fatal(error)``
 (the node then exits non-zero, so ``respawn`` in a launch file can act). All times are
-``time.monotonic()``.
+``time.monotonic()`` (system-wide, so stamps taken in another process compare).
+
+``ProcessCameraStream`` runs the same in a child process: the node's other threads (the
+matcher, a user's node in the same process) then never make the reader wait for the GIL
+between two transfers of a frame, which loses sync (measured: ``st-stereo rig-bench``).
+Frames come back through a pipe; the child's counters are mirrored every half second.
 """
 
 import dataclasses
+import multiprocessing
 import threading
 import time
 
@@ -79,6 +85,14 @@ class CameraStream:
     def alive(self):
         """Whether the reading thread runs."""
         return self._thread.is_alive()
+
+    def run_ffc(self):
+        """Start an FFC on the camera (CciError / PureThermalError when it cannot)."""
+        reader = self.reader
+        control = getattr(reader, 'control', reader)
+        if control is None or not hasattr(control, 'run_ffc'):
+            raise CciError(f'{self.name} camera: not open (starting or restarting)')
+        control.run_ffc()
 
     def seconds_since_frame(self, now=None):
         """Seconds since the last frame (inf before the first)."""
@@ -187,3 +201,167 @@ def open_purethermal_camera(serial, video_device, counters=None):
     """Open a PureThermal board (by serial when given) and its V4L2 device."""
     from st_stereo.lepton.purethermal import PureThermalReader
     return PureThermalReader(serial, video_device, counters=counters)
+
+
+def _stream_process_main(name, arguments, connection):
+    """Entry point of a camera's reader process: a CameraStream, frames sent to the parent."""
+    from st_stereo.lepton.assembler import LeptonCounters
+    lock = threading.Lock()
+
+    def send(message):
+        with lock:
+            connection.send(message)
+
+    counters = LeptonCounters()
+    log = lambda message: send(('log', message))           # noqa: E731
+
+    def open_camera():
+        return open_spi_camera(counters=counters, log=log, **arguments)
+
+    stream = CameraStream(name, open_camera, lambda side, frame: send(('frame', frame)),
+                          lambda side, error: send(('fatal', f'{type(error).__name__}: '
+                                                             f'{error}')), log=log)
+    stream.start()
+    try:
+        while stream.alive:
+            if connection.poll(0.5):
+                request = connection.recv()
+                if request[0] == 'stop':
+                    break
+                if request[0] == 'ffc':
+                    try:
+                        stream.run_ffc()
+                        send(('reply', True, ''))
+                    except (CciError, OSError) as error:
+                        send(('reply', False, str(error)))
+            device = getattr(getattr(stream.reader, 'transport', None), 'device', '')
+            send(('counters', counters.as_dict(), stream.counters.as_dict(), device))
+    except (EOFError, OSError, KeyboardInterrupt):
+        pass
+    finally:
+        stream.stop()
+
+
+class ProcessCameraStream:
+    """
+    A SPI camera read by a ``CameraStream`` in its own process (see the module docstring).
+
+    Same interface as ``CameraStream`` for the driver: ``start``, ``stop``, ``counters``,
+    ``run_ffc``, ``seconds_since_frame``, ``device``; ``lepton_counters`` mirrors the child's
+    reader counters. ``arguments`` are those of ``open_spi_camera`` but ``counters``/``log``.
+    """
+
+    def __init__(self, name, arguments, on_frame, on_fatal=None, lepton_counters=None,
+                 log=None):
+        from st_stereo.lepton.assembler import LeptonCounters
+        self.name = name
+        self.arguments = dict(arguments)
+        self.on_frame = on_frame
+        self.on_fatal = on_fatal
+        self.log = log or (lambda message: None)
+        self.counters = StreamCounters()
+        self.lepton_counters = lepton_counters if lepton_counters is not None else \
+            LeptonCounters()
+        self.device = self.arguments.get('device', name)
+        self._replies = []
+        self._reply_ready = threading.Condition()
+        self._stopping = False
+        context = multiprocessing.get_context('spawn')
+        self._connection, child = context.Pipe()
+        self._process = context.Process(target=_stream_process_main, name=f'lepton_{name}',
+                                        args=(name, self.arguments, child), daemon=True)
+        self._thread = threading.Thread(target=self._receive, name=f'lepton_{name}_receive',
+                                        daemon=True)
+        self._send_lock = threading.Lock()
+
+    @property
+    def reader(self):
+        """Stands for the reader in diagnostics (its device)."""
+        return self
+
+    @property
+    def transport(self):
+        """Stands for the transport in diagnostics (its device)."""
+        return self
+
+    def start(self):
+        """Start the reader process and the thread that receives its frames."""
+        self._process.start()
+        self._thread.start()
+        return self
+
+    @property
+    def alive(self):
+        """Whether the reader process runs."""
+        return self._process.is_alive()
+
+    def _receive(self):
+        counters = self.counters
+        while True:
+            try:
+                message = self._connection.recv()
+            except (EOFError, OSError):
+                break
+            kind = message[0]
+            if kind == 'frame':
+                counters.frames += 1
+                counters.last_frame_time = time.monotonic()
+                self.on_frame(self.name, message[1])
+            elif kind == 'counters':
+                for key, value in message[1].items():
+                    setattr(self.lepton_counters, key, value)
+                for key, value in message[2].items():
+                    if key not in ('frames', 'last_frame_time'):
+                        setattr(counters, key, value)
+                self.device = message[3] or self.device
+            elif kind == 'log':
+                self.log(message[1])
+            elif kind == 'reply':
+                with self._reply_ready:
+                    self._replies.append(message[1:])
+                    self._reply_ready.notify_all()
+            elif kind == 'fatal':
+                self._fatal(message[1])
+                return
+        if not self._stopping:
+            self._process.join(1.0)
+            self._fatal(f'reader process ended (exit code {self._process.exitcode})')
+
+    def _fatal(self, message):
+        self.counters.last_error = message
+        if self.on_fatal is not None:
+            self.on_fatal(self.name, RuntimeError(message))
+
+    def run_ffc(self, timeout_s=3.0):
+        """Ask the reader process to start an FFC; CciError with its reason when it fails."""
+        with self._reply_ready:
+            self._replies.clear()
+        with self._send_lock:
+            self._connection.send(('ffc',))
+        with self._reply_ready:
+            if not self._reply_ready.wait_for(lambda: self._replies, timeout_s):
+                raise CciError(f'{self.name} camera: no answer from its reader process')
+            ok, reason = self._replies.pop(0)
+        if not ok:
+            raise CciError(reason)
+
+    def seconds_since_frame(self, now=None):
+        """Seconds since the last frame (inf before the first)."""
+        return CameraStream.seconds_since_frame(self, now)
+
+    def stop(self, timeout_s=3.0):
+        """Stop the reader process (it closes the camera) and the receiving thread."""
+        self._stopping = True
+        if self._process.is_alive():
+            try:
+                with self._send_lock:
+                    self._connection.send(('stop',))
+            except OSError:
+                pass
+            self._process.join(timeout_s)
+            if self._process.is_alive():
+                self._process.kill()
+                self._process.join(1.0)
+        self._connection.close()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)

@@ -117,6 +117,7 @@ class DriverNode(Node):
         self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_HZ) for _ in SIDES]
         self.recent_skews = collections.deque(maxlen=256)
         self.inexact_drops = [0, 0]
+        self._lost_reported = [0, 0]
         self.ffc_pairs = 0
         self.published = 0
         self.last_telemetry = [None, None]
@@ -190,21 +191,28 @@ class DriverNode(Node):
         self._frames = queue.Queue(maxsize=16)
         self.queue_drops = [0, 0]
         logger = self.get_logger()
-        openers = []
+        reader_mode = self._value('spi_reader')
+        if reader_mode not in ('process', 'thread'):
+            raise ValueError(f'spi_reader: expected process or thread, got {reader_mode!r}')
+        self.streams = []
         for index, side in enumerate(SIDES):
             counters = self.camera_counters[index]
             if self.source == 'spi':
-                openers.append(lambda d=devices[index], b=buses[index], c=counters:
-                               stream.open_spi_camera(d, spi_hz, b, self.telemetry, c,
-                                                      self.boot_timeout, logger.warning))
+                arguments = {'device': devices[index], 'spi_hz': spi_hz,
+                             'i2c_bus': buses[index], 'telemetry': self.telemetry,
+                             'boot_timeout_s': self.boot_timeout}
+                if reader_mode == 'process':
+                    self.streams.append(stream.ProcessCameraStream(
+                        side, arguments, self._on_frame, self._on_fatal, counters,
+                        log=logger.warning))
+                    continue
+                opener = (lambda a=arguments, c=counters: stream.open_spi_camera(
+                    counters=c, log=logger.warning, **a))
             else:
-                openers.append(lambda i=index, side=side, c=counters:
-                               stream.open_purethermal_camera(
-                                   self._value(f'{side}_serial'),
-                                   self._value(f'{side}_video_device'), c))
-        self.streams = [stream.CameraStream(side, opener, self._on_frame, self._on_fatal,
-                                            log=logger.warning)
-                        for side, opener in zip(SIDES, openers)]
+                opener = (lambda side=side, c=counters: stream.open_purethermal_camera(
+                    self._value(f'{side}_serial'), self._value(f'{side}_video_device'), c))
+            self.streams.append(stream.CameraStream(side, opener, self._on_frame,
+                                                    self._on_fatal, log=logger.warning))
         self._thread = threading.Thread(target=self._pair_live, name='lepton_pairing',
                                         daemon=True)
         self._thread.start()
@@ -340,12 +348,7 @@ class DriverNode(Node):
         """One callable per camera that starts an FFC, or None where there is no control."""
         if not self.live:
             return [camera.run_ffc if camera is not None else None for camera in self.cameras]
-        actions = []
-        for camera_stream in self.streams:
-            reader = camera_stream.reader
-            control = getattr(reader, 'control', None) if self.source == 'spi' else reader
-            actions.append(control.run_ffc if control is not None else None)
-        return actions
+        return [camera_stream.run_ffc for camera_stream in self.streams]
 
     def _trigger_ffc(self, request, response):
         done, failed = [], []
@@ -460,8 +463,12 @@ class DriverNode(Node):
         elif self.live and rate < 8.0 and now - self.started > 6.0:
             level, summary = diagnostics.WARN, f'{rate:.2f} unique frames/s, below 8'
         else:
-            level = diagnostics.OK if not lost else diagnostics.WARN
-            summary = f'{counters["unique_frames"]} frames, {lost} lost'
+            # WARN while frames are being lost (since the last report), not for ever after.
+            recent = lost - self._lost_reported[index]
+            level = diagnostics.OK if not recent else diagnostics.WARN
+            summary = f'{counters["unique_frames"]} frames, {lost} lost' + \
+                (f' ({recent} in the last second)' if recent else '')
+        self._lost_reported[index] = lost
         return diagnostics.status(f'{self.get_name()}: {side} camera', hardware, level, summary,
                                   counters)
 

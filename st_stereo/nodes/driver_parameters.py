@@ -17,6 +17,9 @@ DRIVER_PARAMETERS = [
     ('sim_texture', '', 'sim: texture image (empty = a shared thermal frame)'),
     ('spi_hz', 16000000, 'spi: SPI clock, Hz (4 to 20 MHz: a frame must be clocked out well '
      'within one 37.9 ms core period)'),
+    ('spi_reader', 'process', 'spi: where each camera is read: process (its own process, never '
+     'waiting for the GIL of this one: the default, measured to survive a busy neighbour) or '
+     'thread (a thread of this process; enough when nothing else here holds the GIL)'),
     ('boot_timeout', 10.0, 'spi: seconds to wait for a camera to boot (I2C NACKs, then busy) '
      'before its start-up counts as failed and is retried'),
     ('give_up_after', 60.0, 'spi, purethermal: exit the node (non-zero, for launch respawn) '

@@ -34,6 +34,7 @@ class Published:
     images: dict = dataclasses.field(default_factory=lambda: {'left': [], 'right': []})
     pair_info: list = dataclasses.field(default_factory=list)
     statuses: dict = dataclasses.field(default_factory=dict)
+    history: list = dataclasses.field(default_factory=list)    # (monotonic, name, level)
     arrivals: list = dataclasses.field(default_factory=list)   # (monotonic, side)
 
 
@@ -65,16 +66,48 @@ def _subscriber_class():
             self.got.arrivals.append((time.monotonic(), side))
 
         def _on_diagnostics(self, msg):
+            now = time.monotonic()
             for status in msg.status:
                 self.got.statuses[status.name] = (status.level, status.message,
                                                   {kv.key: kv.value for kv in status.values})
+                self.got.history.append((now, status.name, status.level))
     return RigSubscriber
 
 
+def _stepping_clock_class():
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+
+    class SteppingClock(Node):
+        """
+        The rig's wall-clock step: publishes /clock = monotonic time + an offset to step.
+
+        Nodes with ``use_sim_time`` see their clock jump when ``offset`` changes, as an NTP
+        step moves the system clock under a real rig.
+        """
+
+        def __init__(self, context, period_s=0.005):
+            super().__init__('stepping_clock', context=context)
+            self.offset = 1.0e9 - time.monotonic()
+            self.publisher = self.create_publisher(Clock, '/clock', 10)
+            self.create_timer(period_s, self.tick)
+            self.tick()
+
+        def tick(self):
+            """Publish the clock now."""
+            now = time.monotonic() + self.offset
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = int(now), int((now % 1.0) * 1e9)
+            self.publisher.publish(msg)
+    return SteppingClock
+
+
 def __getattr__(name):
-    # RigSubscriber is built on first use so that importing this module needs no rclpy.
+    # The nodes are built on first use so that importing this module needs no rclpy.
     if name == 'RigSubscriber':
         return _subscriber_class()
+    if name == 'SteppingClock':
+        return _stepping_clock_class()
     raise AttributeError(name)
 
 
@@ -89,7 +122,7 @@ def spi_parameters(rig, **extra):
 
 
 def rig_configs(bufsiz, crc_fault_rate=0.0):
-    """The two default emulated cameras with a host spidev buffer of ``bufsiz`` bytes."""
+    """Return the two default emulated cameras, the host spidev buffer ``bufsiz`` bytes."""
     return [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=30.0, transfer_bytes=bufsiz,
                          crc_fault_rate=crc_fault_rate),
             CameraConfig('right', seed=2, phase_s=0.015, drift_ppm=-20.0, disparity_px=10.0,
@@ -121,27 +154,28 @@ def _hold_the_gil(stop):
     return total
 
 
-def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0):
+def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process'):
     """
     Run the driver (``layout='driver'``) or driver + rectifier + matcher (``'suite'``).
 
     ``'suite+gil'`` adds a thread of pure-Python work in the same process (the worst case for
     a reading thread: it waits up to the 5 ms switch interval for the GIL after each read).
-    Returns a dict of measurements over the run after ``warmup_s``.
+    ``reader`` is the driver's ``spi_reader`` (process or thread). Returns a dict of
+    measurements over the run after ``warmup_s``.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from st_stereo.lepton.fakes import install_fake_modules
     from st_stereo.nodes.driver_node import DriverNode
     from st_stereo.nodes.matcher_node import MatcherNode
     from st_stereo.nodes.rectifier_node import RectifierNode
     with RigEmulator(rig_configs(bufsiz)) as rig, kernel_bufsiz(bufsiz), \
-            install_fake_modules(**rig.fake_modules()):
+            rig.installed():
         context = rclpy.Context()
         rclpy.init(context=context)
         executor = SingleThreadedExecutor(context=context)
         subscriber = _subscriber_class()(context)
-        driver = DriverNode(context=context, parameter_overrides=spi_parameters(rig))
+        driver = DriverNode(context=context, parameter_overrides=spi_parameters(
+            rig, spi_reader=reader))
         nodes = [subscriber, driver]
         matcher = None
         if layout.startswith('suite'):
@@ -172,7 +206,7 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0):
     for array in got.pair_info:
         values = {kv.key: kv.value for kv in array.status[0].values}
         skews.append(abs(float(values['skew (ms)'])))
-    out = {'layout': layout, 'bufsiz': bufsiz, 'seconds': round(window, 1)}
+    out = {'reader': reader, 'layout': layout, 'bufsiz': bufsiz, 'seconds': round(window, 1)}
     for index, side in enumerate(('left', 'right')):
         unique = [t for t, s in got.arrivals if s == side and t >= start + warmup_s]
         out[f'{side} published /s'] = len(unique) / window
@@ -189,12 +223,12 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0):
 
 def _rig_counts(rig, driver):
     return ({name: camera.stats() for name, camera in rig.cameras.items()},
-            [c.as_dict() for c in driver.camera_counters],
-            [s.counters.as_dict() for s in driver.streams])
+            [dict(c.as_dict()) for c in driver.camera_counters],
+            [dict(s.counters.as_dict()) for s in driver.streams])
 
 
 def _difference(after, before):
-    """Counts of ``after`` minus ``before`` (the run after warm-up)."""
+    """Return the counts of ``after`` minus ``before`` (the run after warm-up)."""
     stats = {name: {key: value - before[0][name].get(key, 0) for key, value in values.items()}
              for name, values in after[0].items()}
     counters = [{key: value - old[key] for key, value in new.items()
@@ -205,14 +239,13 @@ def _difference(after, before):
 
 
 def crc_policy_on_emulator(seconds, rate, policy, bufsiz=65536):
-    """Unique frames per second one reader gets with a CRC fault in ``rate`` of the frames."""
+    """Measure one reader's unique frames/s with a CRC fault in ``rate`` of the frames."""
     from st_stereo.lepton import spi
     from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
-    from st_stereo.lepton.fakes import install_fake_modules
     from st_stereo.lepton.reader import LeptonReader
     config = rig_configs(bufsiz, crc_fault_rate=rate)[0]
     with RigEmulator([config]) as rig, kernel_bufsiz(bufsiz), \
-            install_fake_modules(**rig.fake_modules()):
+            rig.installed():
         LeptonCCI(SMBus2Bus(0)).start('footer')
         transport = spi.SpiTransport(rig.devices['left'], 16_000_000)
         reader = LeptonReader(transport, telemetry='footer', crc_policy=policy)
@@ -251,13 +284,14 @@ def print_table(rows, keys):
 def command_rig_bench(args):
     """``st-stereo rig-bench``."""
     rows = []
-    for bufsiz in [int(b) for b in args.bufsiz.split(',')]:
-        for layout in args.layouts.split(','):
-            rows.append(run_rig(args.seconds, layout, bufsiz))
-            print(f'[rig-bench] {layout}, bufsiz {bufsiz}: {rows[-1]["pairs /s"]:.2f} pairs/s',
-                  flush=True)
+    for reader in args.readers.split(','):
+        for bufsiz in [int(b) for b in args.bufsiz.split(',')]:
+            for layout in args.layouts.split(','):
+                rows.append(run_rig(args.seconds, layout, bufsiz, reader=reader))
+                print(f'[rig-bench] reader {reader}, {layout}, bufsiz {bufsiz}: '
+                      f'{rows[-1]["pairs /s"]:.2f} pairs/s', flush=True)
     print(f'\n## The driver on the emulated rig ({args.seconds:g} s each, after 3 s of start-up)')
-    print_table(rows, ['layout', 'bufsiz', 'left published /s', 'right published /s',
+    print_table(rows, ['reader', 'layout', 'bufsiz', 'left published /s', 'right published /s',
                        'pairs /s', 'left sync losses', 'right sync losses', 'left resyncs',
                        'right resyncs', 'left restarts', 'right restarts',
                        'abs skew ms median', 'abs skew ms p95', 'abs skew ms max',
@@ -284,7 +318,6 @@ def command_soak(args):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
-    from st_stereo.lepton.fakes import install_fake_modules
     from st_stereo.nodes.driver_node import DriverNode
     from st_stereo.nodes.matcher_node import MatcherNode
     from st_stereo.nodes.rectifier_node import RectifierNode
@@ -293,7 +326,7 @@ def command_soak(args):
     with contextlib.ExitStack() as stack:
         if args.source == 'spi':
             rig = stack.enter_context(RigEmulator())
-            stack.enter_context(install_fake_modules(**rig.fake_modules()))
+            stack.enter_context(rig.installed())
             parameters = spi_parameters(rig)
         else:
             parameters = [Parameter('source', value='sim')]
@@ -345,6 +378,8 @@ def add_parser(sub):
     p.add_argument('--layouts', default='driver,suite,suite+gil',
                    help='driver (alone), suite (driver, rectifier, matcher in one process), '
                         'suite+gil (the suite and a thread of pure-Python work)')
+    p.add_argument('--readers', default='process,thread',
+                   help="the driver's spi_reader modes to run, comma separated")
     p.add_argument('--crc-rate', type=float, default=0.05,
                    help='CRC faults per core frame for the CRC-policy comparison (0 = skip)')
     p.set_defaults(handler=command_rig_bench)
@@ -356,4 +391,3 @@ def add_parser(sub):
     p.add_argument('--warmup', type=float, default=60.0,
                    help='seconds before the trend is measured')
     p.set_defaults(handler=command_soak)
-
