@@ -62,6 +62,15 @@ def spin_with_events(executor, seconds, events=()):
     return start
 
 
+def run_driver(executor, driver, seconds=RUN_S, events=()):
+    """Spin with events, then stop the driver and let its last messages arrive: (start, end)."""
+    start = spin_with_events(executor, seconds, events)
+    end = time.monotonic()
+    driver.destroy_node()
+    spin_for(executor, 0.3)
+    return start, end
+
+
 def first_arrival_after(got, moment):
     """Monotonic time of the first left image received after ``moment``."""
     return min((t for t, side in got.arrivals if side == 'left' and t > moment), default=None)
@@ -130,10 +139,7 @@ def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader)
         subscriber = add(RigSubscriber(context))
         driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(
             rig, spi_reader=reader)))
-        start = spin_with_events(executor, RUN_S)
-        end = time.monotonic()
-        driver.destroy_node()
-        spin_for(executor, 0.3)
+        start, end = run_driver(executor, driver)
         sent = rig.collect()
         rate = check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
         assert driver.exit_code == 0 and not driver.last_error
@@ -155,10 +161,7 @@ def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_runn
         driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
         add(RectifierNode(context=context))
         matcher = add(MatcherNode(context=context))
-        start = spin_with_events(executor, RUN_S)
-        end = time.monotonic()
-        driver.destroy_node()
-        spin_for(executor, 0.3)
+        start, end = run_driver(executor, driver)
         sent = rig.collect()
         rate = check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
         assert matcher.counts['matched'] >= 8.0 * (RUN_S - 5.0), 'the matcher did not run'
@@ -178,10 +181,7 @@ def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypa
     with ros_nodes() as (context, executor, add):
         subscriber = add(RigSubscriber(context))
         driver = add(DriverNode(context=context, parameter_overrides=parameters))
-        start = spin_with_events(executor, RUN_S)
-        end = time.monotonic()
-        driver.destroy_node()
-        spin_for(executor, 0.3)
+        start, end = run_driver(executor, driver)
         sent = {'left': boards['/dev/video0'].sent, 'right': boards['/dev/video2'].sent}
         check_stream(subscriber.got, sent, 8.0, (start + 3.0, end))
 
@@ -225,10 +225,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
                   (14.0, mark('replug', rig.cameras['left'].replug)),
                   (20.0, mark('step', step_clocks)),
                   (24.0, mark('ffc', call_ffc))]
-        start = spin_with_events(executor, 32.0, events)
-        end = time.monotonic()
-        driver.destroy_node()
-        spin_for(executor, 0.3)
+        start, end = run_driver(executor, driver, 32.0, events)
         sent = rig.collect()
         got = subscriber.got
         # Slow boot: the right camera NACKs for 1.5 s and boots in 3 s; pairs follow.

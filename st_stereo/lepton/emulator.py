@@ -485,7 +485,7 @@ class RemoteCci:
 
 
 class CameraProxy:
-    """The parent's handle on one emulated camera: I2C register access and events."""
+    """The parent's handle on one emulated camera: events and counters."""
 
     def __init__(self, name, connection):
         self.name = name
@@ -496,19 +496,9 @@ class CameraProxy:
         with self._lock:
             self._connection.send(request)
             status, value = self._connection.recv()
-        if status == 'nack':
-            raise OSError(errno.EREMOTEIO, f'Remote I/O error ({value})')
         if status != 'ok':
             raise RuntimeError(f'emulated camera {self.name}: {value}')
         return value
-
-    def read_words(self, register, count):
-        """I2C read of ``count`` words (the ``smbus2`` stand-in calls this)."""
-        return self._request('read', register, count)
-
-    def write_words(self, register, words):
-        """I2C write of words."""
-        self._request('write', register, list(words))
 
     def unplug(self):
         """Power the camera off: SPI floats high, I2C NACKs."""
