@@ -14,13 +14,17 @@ def pairs_of(got):
     return pairs
 
 
-def check_stream(got, sent, min_pairs_per_s, window):
+def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolerance_s=0.01,
+                 max_skew_s=UNIQUE_PERIOD_S):
     """
     Assert what the issue asks of a published stream against what the cameras sent.
 
     Every image equals a frame its camera sent, no frame twice, one left and one right image
-    per stamp, the two of a pair within one unique frame of each other, and at least
-    ``min_pairs_per_s`` pairs per second over ``window`` (monotonic start, end).
+    per stamp, the two of a pair within ``max_skew_s`` of each other by the cameras' own
+    acquisition times, and at least ``min_pairs_per_s`` pairs per second over ``window``
+    (monotonic start, end). With ``clock_offset_s`` (node clock minus monotonic), each stamp
+    is the midpoint of the two true acquisition times and ``pair_info``'s skew their
+    difference, within ``tolerance_s``.
     """
     by_digest = {}
     for side, frames in sent.items():
@@ -35,14 +39,25 @@ def check_stream(got, sent, min_pairs_per_s, window):
         assert not unknown, f'{side}: images {where} of {len(digests)} were never sent'
         assert len(set(digests)) == len(digests), f'{side}: a frame was published twice'
     pairs = pairs_of(got)
+    skews = {}
+    for array in got.pair_info:
+        key = array.header.stamp.sec * 1_000_000_000 + array.header.stamp.nanosec
+        values = {kv.key: kv.value for kv in array.status[0].values}
+        skews[key] = float(values['skew (ms)']) * 1e-3
     for stamp, sides in pairs.items():
         assert set(sides) == {'left', 'right'}, f'stamp {stamp}: only {set(sides)}'
         assert len(sides['left']) == len(sides['right']) == 1, f'stamp {stamp} used twice'
         left = by_digest['left'][sides['left'][0][0]]
         right = by_digest['right'][sides['right'][0][0]]
-        assert abs(left.stamp - right.stamp) <= UNIQUE_PERIOD_S, \
+        assert abs(left.stamp - right.stamp) <= max_skew_s, \
             f'stamp {stamp}: left frame {left.unique} at {left.stamp:.3f} s, right frame ' \
-            f'{right.unique} at {right.stamp:.3f} s: more than one unique frame apart'
+            f'{right.unique} at {right.stamp:.3f} s: more than {max_skew_s:.3f} s apart'
+        if clock_offset_s is not None:
+            true_mid = 0.5 * (left.stamp + right.stamp) + clock_offset_s
+            assert abs(stamp * 1e-9 - true_mid) <= tolerance_s, \
+                f'stamp {stamp * 1e-9:.4f} s, true acquisition midpoint {true_mid:.4f} s'
+            assert abs(skews[stamp] - (right.stamp - left.stamp)) <= tolerance_s, \
+                f'pair_info skew {skews[stamp]:.4f} s, true {right.stamp - left.stamp:.4f} s'
     start, end = window
     arrivals = [t for t, side in got.arrivals if side == 'left' and start <= t <= end]
     rate = len(arrivals) / (end - start)

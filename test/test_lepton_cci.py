@@ -160,8 +160,10 @@ def test_commands_from_two_threads_keep_their_register_sequences_whole():
                 action()
         except CciError as error:
             errors.append(error)
-    threads = [threading.Thread(target=hammer, args=(lambda: cci.set_telemetry(True,
-                                                                                'footer'),)),
+
+    def set_footer():
+        cci.set_telemetry(True, 'footer')
+    threads = [threading.Thread(target=hammer, args=(set_footer,)),
                threading.Thread(target=hammer, args=(cci.run_ffc,))]
     for thread in threads:
         thread.start()

@@ -201,25 +201,35 @@ class SMBus2Bus:
         except OSError as error:
             raise OSError(f'/dev/i2c-{bus_number}: cannot open the I2C bus ({error})') from None
         self.address = address
+        self.bus_number = bus_number
+
+    def _open_bus(self):
+        if self._bus is None:
+            raise OSError(f'/dev/i2c-{self.bus_number}: the bus is closed')
+        return self._bus
 
     def write_words(self, register, words):
         """Write 16-bit words, big-endian, starting at a 16-bit register address."""
+        bus = self._open_bus()
         payload = [register >> 8, register & 0xFF]
         for word in words:
             payload += [(word >> 8) & 0xFF, word & 0xFF]
-        self._bus.i2c_rdwr(self._msg.write(self.address, payload))
+        bus.i2c_rdwr(self._msg.write(self.address, payload))
 
     def read_words(self, register, count):
         """Read ``count`` 16-bit words (big-endian) with a repeated start."""
+        bus = self._open_bus()
         write = self._msg.write(self.address, [register >> 8, register & 0xFF])
         read = self._msg.read(self.address, 2 * count)
-        self._bus.i2c_rdwr(write, read)
+        bus.i2c_rdwr(write, read)
         data = list(read)
         return [(data[2 * i] << 8) | data[2 * i + 1] for i in range(count)]
 
     def close(self):
-        """Close the bus."""
-        self._bus.close()
+        """Close the bus (idempotent; using it afterwards is an OSError)."""
+        if self._bus is not None:
+            self._bus.close()
+            self._bus = None
 
 
 def _name(command):

@@ -19,6 +19,9 @@ What a camera does (Lepton 2 datasheet behaviour, ``../shared/notes/lepton.md``)
   one is ready, when a frame is skipped, or when the host pauses more than
   ``max_packet_gap_s`` (about three line periods, 1.5 ms) between transfers inside a frame;
   sync returns only after the host leaves the bus idle for >= 185 ms (stale bytes dropped);
+- one SPI controller serves ``/dev/spidevB.0`` and ``/dev/spidevB.1``: the kernel runs one
+  transfer at a time, so cameras with the same ``controller`` never transfer at once (one
+  camera's long transfer can hold the other's next one past its 1.5 ms);
 - boot: the I2C address does not acknowledge for ``nack_s``, then the status register reports
   busy until ``boot_s``; video starts after boot;
 - events the tests produce: ``unplug`` (MISO floats high: 0xFF bytes, I2C NACKs), ``replug``
@@ -107,6 +110,7 @@ class CameraConfig:
     disparity_px: float = 0.0        # the scene shifted left by this much (a right camera)
     serial: int = 0x1234
     crc_fault_rate: float = 0.0      # probability per core frame of one packet with a bad CRC
+    controller: int = 0              # cameras on one SPI controller take turns on the bus
 
 
 class TimedScene:
@@ -143,9 +147,10 @@ class TimedScene:
 class _Camera:
     """The state of one emulated camera (runs inside its process)."""
 
-    def __init__(self, config, fd, records, epoch):
+    def __init__(self, config, fd, records, epoch, bus=None):
         from st_stereo.lepton.fakes import FakeCciRegisters
         self.config = config
+        self.bus = bus                    # (lock, shared "free at" time) of the controller
         self.fd = fd
         self.records = records
         self.epoch = epoch
@@ -165,6 +170,7 @@ class _Camera:
         self.power_on_at = now if config.start_booting else now - 10.0
         self.layout = FrameLayout.for_mode('off')
         self.ffc_start_core = None
+        self.imminent_from = None
         self.ffc_error = 0
         self.level_offset = 0.0
         self.frozen = None
@@ -177,6 +183,7 @@ class _Camera:
         self.last_consume_t = now
         self.last_write_t = -math.inf
         self.last_write_s = 0.0
+        self.pause_deadline = math.inf    # the host must clock the frame on by then
         self.pixels_cache = (None, None, False)
         self.last_recorded = -1
         self.stats = collections.Counter()
@@ -192,9 +199,12 @@ class _Camera:
         with self.lock:
             self.layout = FrameLayout.for_mode(location if enabled else 'off')
 
-    def run_ffc(self):
+    def run_ffc(self, announce_frames=0):
+        """Start an FFC: at once (a CCI command), or after ``announce_frames`` "imminent"."""
         with self.lock:
-            self.ffc_start_core = self._ready_index(time.monotonic()) + 1
+            next_core = self._ready_index(time.monotonic()) + 1
+            self.imminent_from = next_core
+            self.ffc_start_core = next_core + 3 * announce_frames
             self.stats['ffc'] += 1
 
     def reboot(self):
@@ -243,6 +253,11 @@ class _Camera:
         start = self.ffc_start_core
         ffc = start is not None and start <= 3 * unique + 2 and 3 * unique < start + \
             FFC_CORE_FRAMES
+        if start is not None and self.imminent_from is not None and \
+                self.imminent_from <= 3 * unique + 2 and 3 * unique + 2 < start:
+            out = self._render(unique)           # new pixels, the camera says "imminent"
+            self.pixels_cache = (unique, out, 'imminent')
+            return out, 'imminent'
         if ffc:
             if self.frozen is None:
                 self.frozen = previous if previous is not None else self._render(unique - 1)
@@ -253,8 +268,9 @@ class _Camera:
                 self.level_offset += FFC_LEVEL_JUMP
                 self.ffc_start_core = None
             out = self._render(unique)
-        self.pixels_cache = (unique, out, ffc)
-        return out, ffc
+        state = 'in_progress' if ffc else False
+        self.pixels_cache = (unique, out, state)
+        return out, state
 
     def _render(self, unique):
         counts = self.scene.frame(self._core_time(3 * unique) - self.epoch, unique)
@@ -269,7 +285,7 @@ class _Camera:
         if layout.telemetry_packets:
             row_a = encode_telemetry_row_a(
                 core, uptime_ms=int((time.monotonic() - self.power_on_at) * 1000),
-                fpa_temperature_k=300.0, ffc_state='in_progress' if ffc else 'complete',
+                fpa_temperature_k=300.0, ffc_state=ffc or 'complete',
                 agc=False, serial=self.config.serial, frame_mean=int(pixels.mean()))
             payloads[layout.telemetry_packets[0]] = np.frombuffer(row_a, dtype='>u2')
         if unique > self.last_recorded:       # the first copy of it the camera sends
@@ -327,6 +343,10 @@ class _Camera:
         level = int.from_bytes(fcntl.ioctl(self.fd, termios.FIONREAD, b'\0\0\0\0'), 'little')
         consumed = self.written - level
         if consumed > self.consumed:
+            # The host's transfer of these bytes ends their clock time after it started (the
+            # FIFO hands them over at once); its next transfer must start within the gap.
+            self.pause_deadline = now + self.config.max_packet_gap_s + \
+                (consumed - self.consumed) * 8.0 / self.config.spi_hz
             self.consumed = consumed
             self.last_consume_t = now
         with self.lock:
@@ -340,9 +360,8 @@ class _Camera:
                         self.frame_read_any = True
                     if now >= self._core_time(frame[0] + 1):
                         self._lose_sync('frame not finished before the next one')
-                    elif self.frame_read_any and frame[2] < len(frame[1]) and level > 0 and \
-                            now - max(self.last_consume_t, self.last_write_t) > \
-                            self.last_write_s + self.config.max_packet_gap_s:
+                    elif self.frame_read_any and level > 0 and now > self.pause_deadline:
+                        # Bytes of a started frame wait longer than the Lepton allows.
                         self._lose_sync('pause inside a frame')
             if level > 0 and now - self.last_consume_t >= RESYNC_IDLE_S:
                 # The host left the bus idle: the camera restarts VoSPI at the next frame,
@@ -355,11 +374,31 @@ class _Camera:
                 self.frame = None
                 self.next_core = max(self.next_core, self._ready_index(now) + 1)
                 self.last_consume_t = now
-            if level == 0 and now >= self.last_write_t + self.last_write_s:
+            if level == 0 and now >= self.last_write_t + self.last_write_s and \
+                    self._take_bus(now):
                 data = self._next_transfer(now)
+                if self.bus is not None:
+                    self.bus[1].value = now + len(data) * 8.0 / self.config.spi_hz
+                    self.bus[0].release()
                 self.written += os.write(self.fd, data)   # fits: the FIFO is empty
                 self.last_write_t = now
                 self.last_write_s = len(data) * 8.0 / self.config.spi_hz
+                # Written when the previous transfer's clock time is over: the host's next
+                # read must come within the gap.
+                self.pause_deadline = max(self.pause_deadline,
+                                          now + self.config.max_packet_gap_s)
+
+    def _take_bus(self, now):
+        """Hold the controller for a transfer (True), or False while the other camera's runs."""
+        if self.bus is None:
+            return True
+        lock, free_at = self.bus
+        lock.acquire()
+        if now < free_at.value:
+            lock.release()
+            self.stats['waits for the shared bus'] += 1
+            return False
+        return True
 
     def _drain(self, level):
         try:
@@ -396,6 +435,9 @@ def _serve(camera, connection, stop, control=True):
             elif kind == 'replug':
                 camera.replug()
                 reply = ('ok', None)
+            elif kind == 'auto_ffc':
+                camera.run_ffc(announce_frames=request[1])
+                reply = ('ok', None)
             elif kind == 'ffc_error':
                 registers.ffc_error = request[1]
                 reply = ('ok', None)
@@ -426,11 +468,11 @@ def _accept(camera, listener, stop):
                          daemon=True).start()
 
 
-def _camera_main(config, fifo, connection, records, epoch, address):
+def _camera_main(config, fifo, connection, records, epoch, address, bus=None):
     """Entry point of a camera process."""
     fd = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)     # never blocks, never EOF for the host
     fcntl.fcntl(fd, F_SETPIPE_SZ, PIPE_BYTES)
-    camera = _Camera(config, fd, records, epoch)
+    camera = _Camera(config, fd, records, epoch, bus)
     stop = threading.Event()
     listener = Listener(address, family='AF_UNIX', authkey=AUTHKEY)
     threading.Thread(target=_accept, args=(camera, listener, stop), daemon=True).start()
@@ -508,6 +550,10 @@ class CameraProxy:
         """Power the camera up again (boot, telemetry off)."""
         self._request('replug')
 
+    def auto_ffc(self, announce_frames=3):
+        """Start an automatic FFC: ``announce_frames`` unique frames "imminent", then frozen."""
+        self._request('auto_ffc', int(announce_frames))
+
     def set_ffc_error(self, code):
         """Make RUN FFC answer with a camera error code (0 = works again)."""
         self._request('ffc_error', int(code))
@@ -532,7 +578,8 @@ class RigEmulator:
     ----------
     configs : sequence of CameraConfig, optional
         Default: a left camera and a right one (10 px disparity), 11 ms apart in phase, drifting
-        +30 / -20 ppm, each on SPI at 16 MHz with the spidev default buffer of 4096 bytes.
+        +30 / -20 ppm, both on one SPI controller at 16 MHz (as ``/dev/spidev0.0`` and
+        ``/dev/spidev0.1``) with the spidev default buffer of 4096 bytes.
     directory : path, optional
         Where the FIFOs go (default: a new temporary directory, removed on exit).
 
@@ -567,6 +614,9 @@ class RigEmulator:
         context = multiprocessing.get_context('spawn')
         self._records = context.Queue()
         epoch = time.monotonic()
+        controllers = collections.Counter(config.controller for config in self.configs)
+        buses = {number: (context.Lock(), context.Value('d', 0.0))
+                 for number, count in controllers.items() if count > 1}
         for index, config in enumerate(self.configs):
             fifo = self.directory / f'spidev0.{index}'
             if fifo.exists():
@@ -576,7 +626,8 @@ class RigEmulator:
             parent, child = context.Pipe()
             process = context.Process(target=_camera_main, name=f'lepton-{config.name}',
                                       args=(config, str(fifo), child, self._records, epoch,
-                                            address), daemon=True)
+                                            address, buses.get(config.controller)),
+                                      daemon=True)
             process.start()
             self._processes.append(process)
             proxy = CameraProxy(config.name, parent)

@@ -197,8 +197,14 @@ class PureThermalReader:
                 counters.frozen += 1
             return None
         counters.unique_frames += 1
-        frame = LeptonFrame(pixels, stamp, self._index, telemetry, ffc,
-                            stamp_exact=first_copy_known(previous, stamp, CORE_FRAME_PERIOD_S))
+        # A board that sends every core frame (copies too): the stamp is the first copy's only
+        # when the frame before it was read one core period earlier. A board that sends only
+        # unique frames: every stamp but the first is as good as V4L2 gives.
+        if counters.duplicates:
+            exact = first_copy_known(previous, stamp, CORE_FRAME_PERIOD_S)
+        else:
+            exact = previous is not None
+        frame = LeptonFrame(pixels, stamp, self._index, telemetry, ffc, stamp_exact=exact)
         self._index += 1
         return frame
 

@@ -15,7 +15,10 @@ import time
 
 from st_stereo.lepton.packets import RAW14_PACKET_BYTES
 
-BUFSIZ_PATH = '/sys/module/spidev/parameters/bufsiz'
+# Where the kernel tells the spidev buffer size; ST_STEREO_SPIDEV_BUFSIZ_PATH overrides it
+# (emulated rigs: the value must reach reader processes, which read it themselves).
+BUFSIZ_PATH = os.environ.get('ST_STEREO_SPIDEV_BUFSIZ_PATH',
+                             '/sys/module/spidev/parameters/bufsiz')
 # 63 packets (telemetry on) of 164 bytes in one 37.9 ms core period needs 2.2 MHz of pure
 # transfer; the frame must also leave time for Python between reads and for the gap to the
 # next frame, so the floor is twice that. The datasheet's own minimum (about 2 MHz) is not
@@ -92,10 +95,15 @@ class SpiTransport:
             self._spi.open_path(device)
         except (OSError, ValueError) as error:
             raise OSError(f'{device}: cannot open ({error})') from None
-        self._spi.mode = 3
-        self._spi.max_speed_hz = int(speed_hz)
-        self._spi.bits_per_word = 8
-        self._fd = os.open(device, os.O_RDONLY)
+        try:
+            self._spi.mode = 3
+            self._spi.max_speed_hz = int(speed_hz)
+            self._spi.bits_per_word = 8
+            self._fd = os.open(device, os.O_RDONLY)
+        except (OSError, ValueError) as error:
+            self._spi.close()
+            raise OSError(f'{device}: cannot configure SPI mode 3 at {speed_hz} Hz '
+                          f'({error})') from None
         buffer_bytes = spidev_buffer_size(bufsiz_path)
         self.max_read_bytes = read_size_for(buffer_bytes)
         self.warning = bufsiz_warning(buffer_bytes)

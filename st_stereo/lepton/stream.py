@@ -75,6 +75,10 @@ class CameraStream:
         self._thread.start()
         return self
 
+    def request_stop(self):
+        """Ask the thread to stop (returns at once; ``stop`` waits for it)."""
+        self._stop.set()
+
     def stop(self, timeout_s=3.0):
         """Stop the thread and close the camera."""
         self._stop.set()
@@ -143,6 +147,7 @@ class CameraStream:
                 return
             finally:
                 if reader is not None:
+                    self.reader = None          # no FFC or diagnostics on a closed camera
                     try:
                         reader.close()
                     except OSError:
@@ -205,7 +210,13 @@ def open_purethermal_camera(serial, video_device, counters=None):
 
 def _stream_process_main(name, arguments, connection):
     """Entry point of a camera's reader process: a CameraStream, frames sent to the parent."""
+    import signal
+
     from st_stereo.lepton.assembler import LeptonCounters
+    # Ctrl-C and a service stop reach the whole process group: the parent stops this process
+    # (or its pipe closes when the parent dies), so a shutdown never looks like a crash.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     lock = threading.Lock()
 
     def send(message):
@@ -232,8 +243,8 @@ def _stream_process_main(name, arguments, connection):
                     try:
                         stream.run_ffc()
                         send(('reply', True, ''))
-                    except (CciError, OSError) as error:
-                        send(('reply', False, str(error)))
+                    except Exception as error:   # noqa: B902 - an FFC never ends the reader
+                        send(('reply', False, f'{type(error).__name__}: {error}'))
             device = getattr(getattr(stream.reader, 'transport', None), 'device', '')
             send(('counters', counters.as_dict(), stream.counters.as_dict(), device))
     except (EOFError, OSError, KeyboardInterrupt):
@@ -349,8 +360,8 @@ class ProcessCameraStream:
         """Seconds since the last frame (inf before the first)."""
         return CameraStream.seconds_since_frame(self, now)
 
-    def stop(self, timeout_s=3.0):
-        """Stop the reader process (it closes the camera) and the receiving thread."""
+    def request_stop(self):
+        """Ask the reader process to stop (returns at once; ``stop`` waits for it)."""
         self._stopping = True
         if self._process.is_alive():
             try:
@@ -358,6 +369,11 @@ class ProcessCameraStream:
                     self._connection.send(('stop',))
             except OSError:
                 pass
+
+    def stop(self, timeout_s=3.0):
+        """Stop the reader process (it closes the camera) and the receiving thread."""
+        self.request_stop()
+        if self._process.is_alive():
             self._process.join(timeout_s)
             if self._process.is_alive():
                 self._process.kill()

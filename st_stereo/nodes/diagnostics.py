@@ -6,6 +6,7 @@ diagnostic_updater's FrequencyStatus; ``status`` builds a DiagnosticStatus from 
 """
 
 import collections
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -14,7 +15,11 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
 
 
 class FrequencyTracker:
-    """Events in a sliding window (default 5 s) against a target frequency and tolerance."""
+    """
+    Events in a sliding window (default 5 s) against a target frequency and tolerance.
+
+    Thread-safe: a reading thread ticks while the diagnostics timer reads.
+    """
 
     def __init__(self, target_hz, tolerance=0.2, window_s=5.0):
         self.target_hz = target_hz
@@ -22,12 +27,14 @@ class FrequencyTracker:
         self.window_s = window_s
         self.events = collections.deque()
         self.total = 0
+        self._lock = threading.Lock()
 
     def tick(self, now):
         """Record one event at ``now`` (seconds)."""
-        self.events.append(now)
-        self.total += 1
-        self._trim(now)
+        with self._lock:
+            self.events.append(now)
+            self.total += 1
+            self._trim(now)
 
     def _trim(self, now):
         while self.events and now - self.events[0] > self.window_s:
@@ -35,8 +42,9 @@ class FrequencyTracker:
 
     def frequency(self, now):
         """Events per second over the window."""
-        self._trim(now)
-        return len(self.events) / self.window_s
+        with self._lock:
+            self._trim(now)
+            return len(self.events) / self.window_s
 
     def values(self, now):
         """(level, summary, key-value dict) with diagnostic_updater's FrequencyStatus keys."""

@@ -231,6 +231,8 @@ class DriverNode(Node):
 
     def _fail(self, message):
         """End the node (non-zero exit, for respawn): a camera cannot recover; say why."""
+        if self._stop.is_set():
+            return                          # shutting down: readers ending is expected
         self.last_error = message
         self.exit_code = 1
         self.get_logger().fatal(f'{message}; shutting down')
@@ -362,6 +364,8 @@ class DriverNode(Node):
                 done.append(side)
             except (CciError, OSError, PureThermalError, ValueError) as error:
                 failed.append(f'{side}: {error}')
+            except Exception as error:   # noqa: B902 - a service call never ends the node
+                failed.append(f'{side}: {type(error).__name__}: {error}')
         response.success = not failed
         response.message = '; '.join(([f'FFC started on {" and ".join(done)}'] if done else [])
                                      + failed)
@@ -409,7 +413,7 @@ class DriverNode(Node):
     def _pairs_status(self, now):
         level, summary, values = self.frequency.values(now)
         pairing = self.pairing.counters
-        skews = sorted(abs(skew) for skew in self.recent_skews)
+        skews = sorted(abs(skew) for skew in list(self.recent_skews))  # list(): one step
         values.update({
             'pairs': pairing.pairs, 'pairs with a camera in FFC': self.ffc_pairs,
             'frames dropped (left unmatched)': pairing.dropped_left,
@@ -475,6 +479,8 @@ class DriverNode(Node):
     def destroy_node(self):
         """Stop the reading threads and close the devices, then the node."""
         self._stop.set()
+        for camera_stream in self.streams or ():
+            camera_stream.request_stop()
         for camera_stream in self.streams or ():
             camera_stream.stop()
         self._thread.join(timeout=2.0)

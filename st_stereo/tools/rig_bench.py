@@ -121,28 +121,44 @@ def spi_parameters(rig, **extra):
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
-def rig_configs(bufsiz, crc_fault_rate=0.0):
-    """Return the two default emulated cameras, the host spidev buffer ``bufsiz`` bytes."""
-    return [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=30.0, transfer_bytes=bufsiz,
-                         crc_fault_rate=crc_fault_rate),
-            CameraConfig('right', seed=2, phase_s=0.015, drift_ppm=-20.0, disparity_px=10.0,
-                         transfer_bytes=bufsiz, crc_fault_rate=crc_fault_rate)]
+def rig_configs(bufsiz, crc_fault_rate=0.0, sweep=False):
+    """
+    Return the two default emulated cameras, the host spidev buffer ``bufsiz`` bytes.
+
+    ``sweep``: clocks +-3000 ppm apart instead of +30 / -20 ppm, so that their relative phase
+    slides through the whole 113.6 ms unique-frame period in about 19 s (real Leptons take
+    tens of minutes), to measure the share of time with no pair.
+    """
+    drifts = (3000.0, -3000.0) if sweep else (30.0, -20.0)
+    return [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=drifts[0],
+                         transfer_bytes=bufsiz, crc_fault_rate=crc_fault_rate),
+            CameraConfig('right', seed=2, phase_s=0.015, drift_ppm=drifts[1],
+                         disparity_px=10.0, transfer_bytes=bufsiz,
+                         crc_fault_rate=crc_fault_rate)]
 
 
 @contextlib.contextmanager
 def kernel_bufsiz(bufsiz):
-    """Make ``SpiTransport`` read ``bufsiz`` as the spidev module parameter (as a kernel would)."""
+    """
+    Make ``SpiTransport`` read ``bufsiz`` as the spidev module parameter (as a kernel would).
+
+    In this process and in the reader processes it spawns (through the environment).
+    """
     from st_stereo.lepton import spi
-    saved = spi.BUFSIZ_PATH
+    saved = spi.BUFSIZ_PATH, os.environ.get('ST_STEREO_SPIDEV_BUFSIZ_PATH')
     with tempfile.TemporaryDirectory() as directory:
         path = os.path.join(directory, 'bufsiz')
         with open(path, 'w', encoding='ascii') as stream:
             stream.write(f'{bufsiz}\n')
-        spi.BUFSIZ_PATH = path
+        spi.BUFSIZ_PATH = os.environ['ST_STEREO_SPIDEV_BUFSIZ_PATH'] = path
         try:
             yield
         finally:
-            spi.BUFSIZ_PATH = saved
+            spi.BUFSIZ_PATH = saved[0]
+            if saved[1] is None:
+                os.environ.pop('ST_STEREO_SPIDEV_BUFSIZ_PATH', None)
+            else:
+                os.environ['ST_STEREO_SPIDEV_BUFSIZ_PATH'] = saved[1]
 
 
 def _hold_the_gil(stop):
@@ -160,15 +176,17 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process
 
     ``'suite+gil'`` adds a thread of pure-Python work in the same process (the worst case for
     a reading thread: it waits up to the 5 ms switch interval for the GIL after each read).
-    ``reader`` is the driver's ``spi_reader`` (process or thread). Returns a dict of
-    measurements over the run after ``warmup_s``.
+    ``'sweep'`` is the driver alone with cameras whose phase slides through the whole
+    period (``rig_configs``). ``reader`` is the driver's ``spi_reader`` (process or thread).
+    Returns a dict of measurements over the run after ``warmup_s``.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from st_stereo.nodes.driver_node import DriverNode
     from st_stereo.nodes.matcher_node import MatcherNode
     from st_stereo.nodes.rectifier_node import RectifierNode
-    with RigEmulator(rig_configs(bufsiz)) as rig, kernel_bufsiz(bufsiz), \
+    configs = rig_configs(bufsiz, sweep=layout == 'sweep')
+    with RigEmulator(configs) as rig, kernel_bufsiz(bufsiz), \
             rig.installed():
         context = rclpy.Context()
         rclpy.init(context=context)
@@ -195,7 +213,7 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process
                 matched_before = matcher.counts['matched'] if matcher is not None else 0
         end = time.monotonic()
         stop.set()
-        stats, counters, streams = _difference(_rig_counts(rig, driver), snapshot)
+        stats, counters, streams, pairing = _difference(_rig_counts(rig, driver), snapshot)
         matched = (matcher.counts['matched'] - matched_before) if matcher is not None else 0
         for node in reversed(nodes):
             node.destroy_node()
@@ -214,6 +232,9 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process
         out[f'{side} resyncs'] = counters[index]['resyncs']
         out[f'{side} restarts'] = streams[index]['restarts']
     out['pairs /s'] = out['left published /s']
+    paired = pairing['pairs'] + pairing['dropped_left']
+    out['left frames without pair'] = pairing['dropped_left'] / paired if paired else \
+        float('nan')
     out['abs skew ms median'] = float(np.median(skews)) if skews else float('nan')
     out['abs skew ms p95'] = float(np.percentile(skews, 95)) if skews else float('nan')
     out['abs skew ms max'] = float(np.max(skews)) if skews else float('nan')
@@ -224,7 +245,8 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process
 def _rig_counts(rig, driver):
     return ({name: camera.stats() for name, camera in rig.cameras.items()},
             [dict(c.as_dict()) for c in driver.camera_counters],
-            [dict(s.counters.as_dict()) for s in driver.streams])
+            [dict(s.counters.as_dict()) for s in driver.streams],
+            dict(driver.pairing.counters.as_dict()))
 
 
 def _difference(after, before):
@@ -235,7 +257,9 @@ def _difference(after, before):
                  if isinstance(value, int)} for new, old in zip(after[1], before[1])]
     streams = [{key: value - old[key] for key, value in new.items()
                 if isinstance(value, int)} for new, old in zip(after[2], before[2])]
-    return stats, counters, streams
+    pairing = {key: value - before[3][key] for key, value in after[3].items()
+               if isinstance(value, int)}
+    return stats, counters, streams, pairing
 
 
 def crc_policy_on_emulator(seconds, rate, policy, bufsiz=65536):
@@ -295,7 +319,7 @@ def command_rig_bench(args):
                        'pairs /s', 'left sync losses', 'right sync losses', 'left resyncs',
                        'right resyncs', 'left restarts', 'right restarts',
                        'abs skew ms median', 'abs skew ms p95', 'abs skew ms max',
-                       'matched /s'])
+                       'left frames without pair', 'matched /s'])
     if args.crc_rate > 0:
         crc_rows = [crc_policy_on_emulator(args.seconds, args.crc_rate, policy)
                     for policy in ('drop', 'resync')]
@@ -375,9 +399,10 @@ def add_parser(sub):
     p.add_argument('--seconds', type=float, default=20.0, help='measured seconds per run')
     p.add_argument('--bufsiz', default='4096,65536',
                    help='spidev buffer sizes (bytes) to emulate, comma separated')
-    p.add_argument('--layouts', default='driver,suite,suite+gil',
+    p.add_argument('--layouts', default='driver,suite,suite+gil,sweep',
                    help='driver (alone), suite (driver, rectifier, matcher in one process), '
-                        'suite+gil (the suite and a thread of pure-Python work)')
+                        'suite+gil (the suite and a thread of pure-Python work), sweep (the '
+                        'driver, camera phases sliding through the whole period)')
     p.add_argument('--readers', default='process,thread',
                    help="the driver's spi_reader modes to run, comma separated")
     p.add_argument('--crc-rate', type=float, default=0.05,
