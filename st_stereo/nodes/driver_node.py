@@ -127,15 +127,21 @@ class DriverNode(Node):
         self._lock = threading.Lock()
         self._stop = threading.Event()
         if self.live:
-            self.readers, self.cameras, self.ccis = [None, None], [None, None], [None, None]
+            self.readers, self.cameras = [None, None], [None, None]
             self._start_live(devices, buses, spi_hz)
         else:
             self.streams = None
-            self.readers, self.cameras, self.ccis = self._open_source(captures)
+            self.readers, self.cameras = self._open_source(captures)
             self._thread = threading.Thread(target=self._run, name='lepton_reader',
                                             daemon=True)
             self._thread.start()
         self.create_timer(1.0, self._publish_diagnostics)
+
+    def camera_counters_list(self):
+        """Each camera's LeptonCounters (live cameras across restarts, else the reader's)."""
+        if self.live:
+            return list(self.camera_counters)
+        return [reader.counters for reader in self.readers]
 
     def _value(self, name):
         return self.get_parameter(name).value
@@ -162,7 +168,7 @@ class DriverNode(Node):
                        LeptonSimulator(sources[1], telemetry=telemetry, drift_ppm=-20.0,
                                        phase_s=0.011, seed=2, keep_intended=False)]
             readers = [LeptonReader(camera, telemetry=telemetry) for camera in cameras]
-            return readers, cameras, [None, None]
+            return readers, cameras
         if self.source == 'capture':
             from st_stereo.lepton.capture import read_capture, ReplayTransport
             readers = []
@@ -173,10 +179,10 @@ class DriverNode(Node):
                 mode = header.get('telemetry', telemetry)
                 readers.append(LeptonReader(ReplayTransport(data, times), telemetry=mode,
                                             frame_gap_wait=False, no_video_s=1e9))
-            return readers, [None, None], [None, None]
+            return readers, [None, None]
         if self.source == 'bag':
             from st_stereo.nodes.bag_source import open_bag_sides
-            return open_bag_sides(self._value('bag')), [None, None], [None, None]
+            return open_bag_sides(self._value('bag')), [None, None]
         raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
                          f'{self.source!r}')
 

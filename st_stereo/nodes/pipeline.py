@@ -207,8 +207,7 @@ def print_summary(driver, matcher, monitor, depth):
         print(f'  matches per pair: median {np.median(monitor.matches):.0f}')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
-    for index, reader in enumerate(driver.readers):
-        counters = reader.counters
+    for index, counters in enumerate(driver.camera_counters_list()):
         print(f'  camera {index}: {counters.unique_frames} unique frames, '
               f'{counters.frames_aborted} aborted, {counters.resyncs} resyncs')
     if driver.last_error:
