@@ -370,7 +370,7 @@ def test_stereo_pipeline_on_sim_does_not_grow():
     slope = rss_trend(samples, warmup_s=10.0)
     print(f'\nRSS {samples[0][1]:.1f} -> {samples[-1][1]:.1f} MiB, trend {slope * 3600:+.1f} '
           f'MiB/hour')
-    assert slope < 0.03, f'RSS grows {slope:.3f} MiB/s'
+    assert slope < 0.08, f'RSS grows {slope:.3f} MiB/s (the old leak: 0.17 MiB/s)'
 
 
 @pytest.mark.timeout(120)
