@@ -128,3 +128,39 @@ def test_reads_what_camera_calibration_writes(tmp_path, model, count):
     again = load_calibration(tmp_path / 'again.yaml')
     for field in ('camera_matrix', 'distortion', 'rectification', 'projection'):
         np.testing.assert_array_equal(getattr(again, field), getattr(loaded, field))
+
+
+def test_mutated_calibration_files_fail_only_with_calibration_errors(tmp_path):
+    # Fuzzing: a few bytes of the shipped file changed (bit flips, insertions, deletions,
+    # truncation); every outcome is a valid calibration or a CalibrationError naming the file.
+    import pathlib
+
+    from hypothesis import given, HealthCheck, settings
+    from hypothesis import strategies as st
+    original = (pathlib.Path(__file__).parents[1] / 'config' / 'calibration' /
+                'left.yaml').read_bytes()
+    target = tmp_path / 'mutated.yaml'
+    edit = st.tuples(st.sampled_from(['flip', 'insert', 'delete', 'truncate']),
+                     st.integers(0, len(original) - 1), st.integers(0, 255))
+
+    @settings(max_examples=400, deadline=None, database=None,
+              suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.lists(edit, min_size=1, max_size=4))
+    def check(edits):
+        data = bytearray(original)
+        for kind, position, value in edits:
+            position = min(position, max(len(data) - 1, 0))
+            if kind == 'flip' and data:
+                data[position] ^= value or 1
+            elif kind == 'insert':
+                data.insert(position, value)
+            elif kind == 'delete' and data:
+                del data[position]
+            else:
+                del data[position:]
+        target.write_bytes(bytes(data))
+        try:
+            load_calibration(target)
+        except CalibrationError as error:
+            assert str(error).startswith(str(target))
+    check()

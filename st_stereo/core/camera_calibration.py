@@ -49,6 +49,10 @@ def _matrix(document, field, shape, source):
         raise CalibrationError(f'{source}: field {field!r} must be a mapping with rows, cols, '
                                f'data; got {entry!r}')
     rows, cols, data = entry['rows'], entry['cols'], entry['data']
+    for name, value in (('rows', rows), ('cols', cols)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= 64:
+            raise CalibrationError(f'{source}: {field}.{name} must be an integer from 1 to '
+                                   f'64, got {value!r}')
     if shape is not None and (rows, cols) != shape:
         raise CalibrationError(f'{source}: {field} must be {shape[0]}x{shape[1]}, got '
                                f'{rows}x{cols}')
@@ -56,9 +60,12 @@ def _matrix(document, field, shape, source):
         length = len(data) if isinstance(data, list) else type(data).__name__
         raise CalibrationError(f'{source}: {field}.data must hold rows*cols = {rows * cols} '
                                f'numbers, got {length}')
+    if not all(isinstance(value, (int, float)) and not isinstance(value, bool)
+               for value in data):
+        raise CalibrationError(f'{source}: {field}.data must be numbers, got {data!r}')
     try:
         values = np.array(data, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CalibrationError(f'{source}: {field}.data must be numbers, got {data!r}') from None
     if not np.isfinite(values).all():
         raise CalibrationError(f'{source}: {field}.data holds non-finite values')
@@ -102,11 +109,19 @@ def load_calibration(path):
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise CalibrationError(f'{path}: calibration file not found')
-    with open(path, encoding='utf-8') as stream:
-        try:
-            document = yaml.safe_load(stream)
-        except yaml.YAMLError as error:
-            raise CalibrationError(f'{path}: not valid YAML: {error}') from None
+    with open(path, 'rb') as stream:
+        raw = stream.read()
+    try:
+        text = raw.decode('utf-8')
+    except UnicodeDecodeError as error:
+        raise CalibrationError(f'{path}: not UTF-8 text (byte {error.start}: '
+                               f'0x{raw[error.start]:02x})') from None
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise CalibrationError(f'{path}: not valid YAML: {error}') from None
+    except RecursionError:
+        raise CalibrationError(f'{path}: not valid YAML: nested too deeply') from None
     return parse_calibration(document, path)
 
 
