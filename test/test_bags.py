@@ -166,3 +166,72 @@ def test_stepping_publishes_one_message_per_step(tmp_path, people_80x60):
         player.close()
         player.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+# --- bags that `ros2 bag record` wrote (issue 13, first part) ---------------------------------
+TALKER_V4 = pathlib.Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'rosbag2' / \
+    'talker_mcap_v4'
+
+
+def talker_copy(tmp_path, replace=()):
+    """A copy of the shared v4 talker bag, its metadata.yaml edited by ``replace`` pairs."""
+    import shutil
+    bag = tmp_path / 'talker'
+    shutil.copytree(TALKER_V4, bag)
+    metadata = bag / 'metadata.yaml'
+    metadata.chmod(0o644)
+    text = metadata.read_text()
+    for old, new in replace:
+        assert old in text
+        text = text.replace(old, new)
+    metadata.write_text(text)
+    return bag
+
+
+def play_to_subscriber(bag, topics=None):
+    """Play a bag through BagPlayer to a real rclpy subscriber of /topic; returns the data."""
+    from std_msgs.msg import String
+    context, executor = new_context()
+    listener = Node('listener', context=context)
+    received = []
+    listener.create_subscription(String, '/topic', lambda msg: received.append(msg.data), 20)
+    player = BagPlayer(bag, rate=10.0, topics=topics, context=context)
+    for node in (listener, player):
+        executor.add_node(node)
+    try:
+        spin_for(executor, 1.0)
+        player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
+        spin_for(executor, 0.5)
+        return received, player
+    finally:
+        player.close()
+        for node in (listener, player):
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_the_v4_mcap_talker_bag_ros2_bag_wrote_replays_all_its_messages():
+    # rosbags alone yields none of them: its metadata and MCAP channel QoS texts differ.
+    received, player = play_to_subscriber(TALKER_V4)
+    assert received == [f'Hello, world! {i}' for i in range(10)]
+    assert player.published == 20 and not player.skipped      # /topic and /rosout
+
+
+def test_old_type_names_and_uninstalled_types(tmp_path):
+    # A type written the old way (pkg/Type) plays; an uninstalled type is skipped, named.
+    bag = talker_copy(tmp_path, [('type: std_msgs/msg/String', 'type: std_msgs/String'),
+                                 ('type: rcl_interfaces/msg/Log', 'type: acme_msgs/msg/Log')])
+    received, player = play_to_subscriber(bag)
+    assert len(received) == 10
+    assert player.skipped == [('/rosout', 'message type acme_msgs/msg/Log: not installed '
+                                          '(install the ROS package acme_msgs, e.g. '
+                                          'ros-jazzy-acme-msgs)')]
+
+
+def test_bag_play_exits_non_zero_when_nothing_can_be_played(tmp_path, capsys):
+    from st_stereo.nodes.bags import play_main
+    bag = talker_copy(tmp_path, [('type: std_msgs/msg/String', 'type: acme_msgs/msg/Thing')])
+    assert play_main([str(bag), '--topics', '/topic']) == 1
+    err = capsys.readouterr().err
+    assert 'skipping /topic: message type acme_msgs/msg/Thing: not installed' in err
+    assert 'no topic can be played' in err

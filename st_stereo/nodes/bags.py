@@ -9,7 +9,6 @@ topic's recorded bytes unchanged, with its recorded type and QoS, at the recorde
 """
 
 import argparse
-import importlib
 import pathlib
 import sys
 import time
@@ -22,19 +21,11 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
+from st_stereo.bag_reading import bag_messages, message_class
 from st_stereo.nodes.runtime import with_default_namespace
 
 RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
                    'right/camera_info')
-
-
-def message_class(msgtype):
-    """Return the Python class of 'pkg/msg/Name' (ImportError names a missing package)."""
-    package, kind, name = msgtype.split('/')
-    try:
-        return getattr(importlib.import_module(f'{package}.{kind}'), name)
-    except (ImportError, AttributeError):
-        raise ImportError(f'message type {msgtype}: its package is not installed') from None
 
 
 def qos_from_recorded(profiles):
@@ -110,13 +101,18 @@ class BagPlayer(Node):
         self.reader.open()
         self.rate = rate
         self.publishers_by_id = {}
+        self.skipped = []            # (topic, reason) of topics that cannot be played
         for connection in self.reader.connections:
             if topics and connection.topic not in topics:
                 continue
+            try:
+                cls = message_class(connection.msgtype)
+            except (ImportError, ValueError) as error:
+                self.skipped.append((connection.topic, str(error)))
+                continue
             profiles = getattr(connection.ext, 'offered_qos_profiles', [])
             self.publishers_by_id[connection.id] = self.create_publisher(
-                message_class(connection.msgtype), connection.topic,
-                qos_from_recorded(profiles))
+                cls, connection.topic, qos_from_recorded(profiles))
         self.clock_pub = self.create_publisher(Clock, '/clock', 10) if publish_clock else None
         self.published = 0
 
@@ -130,7 +126,7 @@ class BagPlayer(Node):
         connections = [c for c in self.reader.connections if c.id in self.publishers_by_id]
         start_wall = time.monotonic()
         start_bag = None
-        for connection, timestamp, data in self.reader.messages(connections=connections):
+        for connection, timestamp, data in bag_messages(self.reader, connections):
             if stop is not None and stop():
                 break
             if start_bag is None:
@@ -190,14 +186,27 @@ def play_main(argv=None):
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['bag_play', *ros_args] if ros_args else None)
     node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
+    status = 0
     try:
+        for topic, reason in node.skipped:
+            print(f'bag_play: skipping {topic}: {reason}', file=sys.stderr)
+        if not node.publishers_by_id:
+            print(f'bag_play: {args.bag}: no topic can be played', file=sys.stderr)
+            return 1
         time.sleep(0.5)      # let subscribers discover the publishers
         step = (lambda: sys.stdin.readline()) if args.step else None
         count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s), step=step)
         print(f'published {count} messages from {args.bag}')
+        expected = sum(c.msgcount for c in node.reader.connections
+                       if c.id in node.publishers_by_id)
+        if count == 0 and expected:
+            print(f'bag_play: {args.bag}: the metadata lists {expected} messages of the '
+                  f'playable topics but none could be read', file=sys.stderr)
+            status = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.close()
         node.destroy_node()
         rclpy.try_shutdown()
+    return status

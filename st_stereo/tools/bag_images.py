@@ -14,6 +14,8 @@ def raw_image_messages(path):
     """
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import get_typestore, Stores
+
+    from st_stereo.bag_reading import bag_messages
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f'{path}: no such bag')
@@ -24,8 +26,8 @@ def raw_image_messages(path):
         if set(wanted.values()) != set(SIDES):
             raise ValueError(f'{path}: expected topics ending in left/image_raw and '
                              f'right/image_raw, found {sorted(reader.topics)}')
-        for connection, _, data in reader.messages(
-                connections=[c for c in reader.connections if c.id in wanted]):
+        for connection, _, data in bag_messages(
+                reader, [c for c in reader.connections if c.id in wanted]):
             msg = typestore.deserialize_cdr(data, connection.msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             yield wanted[connection.id], stamp, msg
