@@ -174,7 +174,7 @@ TALKER_V4 = pathlib.Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'r
 
 
 def talker_copy(tmp_path, replace=()):
-    """A copy of the shared v4 talker bag, its metadata.yaml edited by ``replace`` pairs."""
+    """Copy the shared v4 talker bag, its metadata.yaml edited by ``replace`` pairs."""
     import shutil
     bag = tmp_path / 'talker'
     shutil.copytree(TALKER_V4, bag)
