@@ -10,9 +10,48 @@ One place for ``bag_play``, the driver's ``source:=bag`` and ``st-stereo calibra
   and yielded no message at all. rosbag2 itself matches by topic and type; so does this.
   (Worth offering upstream: the QoS text is not part of a connection's identity.)
 - ``normalized_msgtype``: ``pkg/msg/Name``, also for the old ``pkg/Name`` spelling.
+- ``open_bag``: a damaged or foreign bag is one ``BagError`` line naming the file, the line
+  where the parser stopped (when it says) and what is wrong, never a traceback.
 """
 
 import importlib
+import pathlib
+
+
+class BagError(ValueError):
+    """A bag cannot be read; the message names the file and the problem."""
+
+
+def open_bag(path):
+    """Open a rosbag2 directory (or storage file) with rosbags; BagError when it cannot."""
+    from rosbags.rosbag2 import Reader
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'{path}: no such bag')
+    metadata = path / 'metadata.yaml' if path.is_dir() else path
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as error:      # noqa: B902 - rosbags and its YAML parser raise many kinds
+        raise BagError(f'{metadata}: {_one_line(error)}') from None
+    for connection in reader.connections:
+        try:
+            normalized_msgtype(connection.msgtype)
+        except ValueError as error:
+            reader.close()
+            raise BagError(f'{metadata}: topic {connection.topic}: {error}') from None
+    return reader
+
+
+def _one_line(error):
+    mark = getattr(error, 'problem_mark', None) or getattr(
+        getattr(error, '__cause__', None), 'problem_mark', None)
+    where = f'line {mark.line + 1}: ' if mark is not None else ''
+    cause = error.__cause__ or error.__context__
+    text = str(error) or type(error).__name__
+    if cause is not None and str(cause) not in text:
+        text += f' ({type(cause).__name__}: {cause})'
+    return where + ' '.join(text.split())
 
 
 def normalized_msgtype(msgtype):

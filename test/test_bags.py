@@ -235,3 +235,40 @@ def test_bag_play_exits_non_zero_when_nothing_can_be_played(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'skipping /topic: message type acme_msgs/msg/Thing: not installed' in err
     assert 'no topic can be played' in err
+
+
+def test_damaged_bag_metadata_is_one_line_naming_the_file(tmp_path):
+    # Copies of the bundled recording with a few bytes of metadata.yaml changed: each opens
+    # (and its topics resolve) or is one BagError line naming metadata.yaml, never another
+    # exception. A seeded sweep, the same cases every run.
+    import random
+    import shutil
+    from st_stereo.bag_reading import BagError, message_class, open_bag
+    source = pathlib.Path(__file__).resolve().parents[1] / 'data' / 'recordings' / 'office' / \
+        'bag'
+    original = (source / 'metadata.yaml').read_bytes()
+    rng = random.Random(13)
+    outcomes = {'opened': 0, 'BagError': 0}
+    for case in range(60):
+        bag = tmp_path / f'bag{case}'
+        shutil.copytree(source, bag)
+        data = bytearray(original)
+        for _ in range(rng.randint(1, 4)):
+            data[rng.randrange(len(data))] = rng.randrange(32, 127)
+        (bag / 'metadata.yaml').write_bytes(bytes(data))
+        try:
+            reader = open_bag(bag)
+        except BagError as error:
+            message = str(error)
+            assert message.startswith(str(bag / 'metadata.yaml')) and '\n' not in message
+            outcomes['BagError'] += 1
+            continue
+        for connection in reader.connections:
+            try:
+                message_class(connection.msgtype)
+            except ImportError as error:
+                assert connection.msgtype in str(error)
+        reader.close()
+        outcomes['opened'] += 1
+        shutil.rmtree(bag)
+    assert outcomes['BagError'] > 10, outcomes

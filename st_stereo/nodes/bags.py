@@ -17,11 +17,11 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
-from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
-from st_stereo.bag_reading import bag_messages, message_class
+from st_stereo.bag_reading import bag_messages, BagError, message_class, open_bag
 from st_stereo.nodes.runtime import with_default_namespace
 
 RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
@@ -97,8 +97,7 @@ class BagPlayer(Node):
         if rate <= 0:
             raise ValueError(f'rate must be positive, got {rate}')
         self.path = pathlib.Path(path)
-        self.reader = Reader(self.path)
-        self.reader.open()
+        self.reader = open_bag(self.path)
         self.rate = rate
         self.publishers_by_id = {}
         self.skipped = []            # (topic, reason) of topics that cannot be played
@@ -185,7 +184,12 @@ def play_main(argv=None):
     parser.add_argument('--topics', nargs='*', help='only these topics')
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['bag_play', *ros_args] if ros_args else None)
-    node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
+    try:
+        node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
+    except (BagError, OSError, ValueError) as error:
+        print(f'bag_play: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     status = 0
     try:
         for topic, reason in node.skipped:

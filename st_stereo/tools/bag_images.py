@@ -12,15 +12,13 @@ def raw_image_messages(path):
     ``msg`` is a rosbags sensor_msgs/Image (fields as in ROS); messages come in bag order. A
     missing bag or a bag without both topics raises a ValueError naming what was found.
     """
-    from rosbags.rosbag2 import Reader
     from rosbags.typesys import get_typestore, Stores
 
-    from st_stereo.bag_reading import bag_messages
+    from st_stereo.bag_reading import bag_messages, open_bag
     path = pathlib.Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f'{path}: no such bag')
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Reader(path) as reader:
+    reader = open_bag(path)
+    try:
         wanted = {c.id: side for c in reader.connections for side in SIDES
                   if c.topic.endswith(f'{side}/image_raw')}
         if set(wanted.values()) != set(SIDES):
@@ -31,3 +29,5 @@ def raw_image_messages(path):
             msg = typestore.deserialize_cdr(data, connection.msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             yield wanted[connection.id], stamp, msg
+    finally:
+        reader.close()
