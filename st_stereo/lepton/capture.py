@@ -156,6 +156,25 @@ def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
     return best_offset, best
 
 
+def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
+    """
+    Byte offset >= ``position`` of the next video packet with a valid CRC (any alignment).
+
+    Returns ``len(data)`` when there is none. This is how a decoder finds packet boundaries
+    again after lost or extra bytes, as a live reader does after a resync.
+    """
+    last = len(data) - packet_bytes
+    view = memoryview(data)
+    for start in range(position, last + 1):
+        packet_id = (data[start] << 8) | data[start + 1]
+        if is_discard(packet_id) or packet_number(packet_id) >= 63:
+            continue
+        if packet_crc(view[start:start + packet_bytes]) == \
+                ((data[start + 2] << 8) | data[start + 3]):
+            return start
+    return len(data)
+
+
 def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
     """
     Telemetry mode of a stream: 'off' (60 packets a frame), 'header' or 'footer' (63).
@@ -204,6 +223,7 @@ class ReplayTransport:
         self.max_read_bytes = 1 << 20
         self.seconds_per_byte = 8.0 / spi_hz
         self._clock = 0.0
+        self.skipped_bytes = 0           # bytes passed over to find packet boundaries again
 
     def now(self):
         """Time of the byte about to be read (recorded, or synthesised)."""
@@ -230,6 +250,16 @@ class ReplayTransport:
         self.position += len(chunk)
         return chunk
 
+    def unread(self, nbytes):
+        """
+        Take back the last ``nbytes`` read (the reader did not use them).
+
+        Plain byte files only: a capture with recorded reads replays the live reader exactly
+        (it dropped those bytes too, and resumed where the next recorded read starts).
+        """
+        if self.times is None:
+            self.position -= min(nbytes, self.position)
+
     def idle(self, seconds):
         """
         Skip to where the live reader resumed after a resync or pause.
@@ -238,10 +268,18 @@ class ReplayTransport:
         reader dropped when it resynchronised are skipped, as they were live. For synthesised
         times only the clock moves on.
         """
-        if self.times is None:
-            self._clock += seconds
-        elif self.position not in set(self.times[0].tolist()):
-            self.position = self._record_end()
+        if self.times is not None:
+            if self.position not in set(self.times[0].tolist()):
+                self.position = self._record_end()
+            return
+        self._clock += seconds
+        # Plain bytes: lost or extra bytes shift every packet after them: resume at the next
+        # packet with a valid CRC, whatever its byte offset (every byte skipped counted).
+        found = next_valid_packet(self.data, self.position, self.packet_bytes)
+        if found >= len(self.data):
+            found = self.position          # nothing valid left: the reader reaches the end
+        self.skipped_bytes += found - self.position
+        self.position = found
 
     def wait(self, seconds):
         """As ``idle``."""
@@ -287,7 +325,9 @@ def decode_capture(path, telemetry=None, spi_hz=None):
             frames.append(frame)
     except EndOfStream:
         pass
-    return frames, reader.counters.as_dict(), mode
+    counters = reader.counters.as_dict()
+    counters['bytes_skipped_realigning'] = transport.skipped_bytes
+    return frames, counters, mode
 
 
 def save_frames_npz(path, frames, counters, telemetry_mode):

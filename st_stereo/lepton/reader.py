@@ -13,7 +13,8 @@ camera over CCI (when a CCI is given). Copies of a unique frame are suppressed b
 
 A transport provides ``read(nbytes) -> bytes``, ``idle(seconds)`` (/CS deasserted),
 ``wait(seconds)`` (no clocking, /CS held), ``now() -> seconds`` and the attributes
-``packet_bytes``, ``max_read_bytes`` and ``seconds_per_byte``.
+``packet_bytes``, ``max_read_bytes`` and ``seconds_per_byte``; a replay of a recording may also
+offer ``unread(nbytes)`` to take back the bytes after a broken frame.
 """
 
 import dataclasses
@@ -250,6 +251,12 @@ class LeptonReader:
                     self.counters.crc_frames_dropped += 1
                 else:
                     self._need_resync = True
+                    unread = getattr(transport, 'unread', None)
+                    if unread is not None and consumed < len(ids):
+                        # A recording can take back what the frame did not use: the search
+                        # for packet boundaries starts there (a live bus cannot).
+                        unread(len(chunk) - consumed * size)
+                        continue
                 if consumed < len(ids):
                     self._leftover = chunk[consumed * size:]
                     self._leftover_stamp = start + consumed * seconds_per_packet
