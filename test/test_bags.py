@@ -272,3 +272,46 @@ def test_damaged_bag_metadata_is_one_line_naming_the_file(tmp_path):
         outcomes['opened'] += 1
         shutil.rmtree(bag)
     assert outcomes['BagError'] > 10, outcomes
+
+
+def test_bag_record_stores_the_offered_qos_and_bag_play_republishes_with_it(tmp_path):
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from st_stereo.bag_reading import open_bag
+    from std_msgs.msg import String
+    context, executor = new_context()
+    talker = Node('qos_talker', context=context)
+    offered = QoSProfile(depth=7, reliability=ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    publisher = talker.create_publisher(String, '/qos_test', offered)
+    bag = tmp_path / 'qos_bag'
+    recorder = BagRecorder(bag, ['/qos_test'], context=context)
+    for node in (talker, recorder):
+        executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 10.0
+        while recorder.counts['/qos_test'] < 5 and time.monotonic() < deadline:
+            publisher.publish(String(data='hello'))
+            spin_for(executor, 0.1)
+        recorder.close()
+    finally:
+        for node in (talker, recorder):
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    reader = open_bag(bag)
+    stored = reader.connections[0].ext.offered_qos_profiles
+    reader.close()
+    # Discovery carries no history or depth (they are local to the publisher): rosbag2 stores
+    # the same "history: 3 (unknown), depth: 0".
+    assert len(stored) == 1 and stored[0].history.name == 'UNKNOWN'
+    assert stored[0].reliability.name == 'BEST_EFFORT'
+    assert stored[0].durability.name == 'TRANSIENT_LOCAL'
+    context, _ = new_context()
+    player = BagPlayer(bag, context=context)
+    try:
+        qos = next(iter(player.publishers_by_id.values())).qos_profile
+        assert qos.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and qos.depth == 10
+    finally:
+        player.close()
+        player.destroy_node()
+        rclpy.try_shutdown(context=context)

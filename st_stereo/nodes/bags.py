@@ -28,6 +28,23 @@ RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
                    'right/camera_info')
 
 
+def offered_qos(profile):
+    """Return the rosbags Qos of an rclpy QoSProfile a publisher offers (as rosbag2 stores)."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                    QosReliability, QosTime)
+
+    def duration(value):
+        seconds, nanoseconds = divmod(int(value.nanoseconds), 1_000_000_000)
+        return QosTime(sec=seconds, nsec=nanoseconds)
+    return Qos(history=QosHistory(int(profile.history)), depth=int(profile.depth),
+               reliability=QosReliability(int(profile.reliability)),
+               durability=QosDurability(int(profile.durability)),
+               deadline=duration(profile.deadline), lifespan=duration(profile.lifespan),
+               liveliness=QosLiveliness(int(profile.liveliness)),
+               liveliness_lease_duration=duration(profile.liveliness_lease_duration),
+               avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
+
 def qos_from_recorded(profiles):
     """
     Return the rclpy QoSProfile of the offered QoS recorded in a bag.
@@ -49,7 +66,7 @@ def qos_from_recorded(profiles):
 
 
 class BagRecorder(Node):
-    """Record topics (raw bytes) into an MCAP rosbag2."""
+    """Record topics (raw bytes and each publisher's offered QoS) into an MCAP rosbag2."""
 
     def __init__(self, path, topics, **kwargs):
         super().__init__('bag_record', **with_default_namespace(kwargs))
@@ -72,8 +89,12 @@ class BagRecorder(Node):
             if topic in self._subscribed or topic not in types:
                 continue
             msgtype = types[topic][0]
+            # Each publisher's offered QoS, as ros2 bag record stores it, so that bag_play
+            # republishes the topic with it.
+            offered = [offered_qos(info.qos_profile)
+                       for info in self.get_publishers_info_by_topic(topic)]
             self.connections[topic] = self.writer.add_connection(
-                topic, msgtype, typestore=self.typestore)
+                topic, msgtype, typestore=self.typestore, offered_qos_profiles=offered)
             self.create_subscription(message_class(msgtype), topic,
                                      lambda data, t=topic: self._write(t, data),
                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
