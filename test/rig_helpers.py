@@ -14,7 +14,7 @@ def pairs_of(got):
     return pairs
 
 
-def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolerance_s=0.01,
+def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolerance_s=0.015,
                  max_skew_s=UNIQUE_PERIOD_S):
     """
     Assert what the issue asks of a published stream against what the cameras sent.

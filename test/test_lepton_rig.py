@@ -239,7 +239,7 @@ def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypa
         start, end = run_driver(executor, driver, RUN_S + 6.0, [(16.0, unplug), (20.0, replug)])
         sent = {'left': boards['/dev/video0'].sent, 'right': boards['/dev/video2'].sent}
         check_stream(subscriber.got, sent, 8.0, (start + 3.0, marks['unplug']),
-                     time.time() - time.monotonic(), tolerance_s=0.015, max_skew_s=0.05)
+                     time.time() - time.monotonic(), tolerance_s=0.02, max_skew_s=0.05)
         assert first_arrival_after(subscriber.got, marks['replug']) - marks['replug'] < 2.0
         assert driver.streams[0].counters.restarts >= 1 and driver.exit_code == 0
 

@@ -258,8 +258,13 @@ class DriverNode(Node):
             if not frame.stamp_exact:
                 self.inexact_drops[index] += 1     # its acquisition time is not known
                 continue
-            for pair in self.pairing.push(side, frame):
-                self._publish_pair(pair, live=True)
+            try:
+                for pair in self.pairing.push(side, frame):
+                    self._publish_pair(pair, live=True)
+            except Exception as error:   # noqa: B902 - never a silent dead thread
+                if not self._stop.is_set() and self.context.ok():
+                    self._fail(f'publishing a pair failed: {type(error).__name__}: {error}')
+                break                    # shutting down (Ctrl-C): the context is gone
         self.finished.set()
 
     # --- recorded and simulated sources: one thread on their own clocks ----------------------
@@ -298,8 +303,9 @@ class DriverNode(Node):
         except EndOfStream:
             pass
         except Exception as error:      # noqa: B902 - reported, the node stays up
-            self.last_error = f'{type(error).__name__}: {error}'
-            self.get_logger().error(f'reading stopped: {self.last_error}')
+            if self.context.ok() and not self._stop.is_set():   # not a shutdown
+                self.last_error = f'{type(error).__name__}: {error}'
+                self.get_logger().error(f'reading stopped: {self.last_error}')
         finally:
             self.finished.set()
 
