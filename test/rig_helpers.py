@@ -14,7 +14,7 @@ def pairs_of(got):
     return pairs
 
 
-def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolerance_s=0.015,
+def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolerance_s=0.025,
                  max_skew_s=UNIQUE_PERIOD_S):
     """
     Assert what the issue asks of a published stream against what the cameras sent.
@@ -24,7 +24,8 @@ def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None, tolera
     acquisition times, and at least ``min_pairs_per_s`` pairs per second over ``window``
     (monotonic start, end). With ``clock_offset_s`` (node clock minus monotonic), each stamp
     is the midpoint of the two true acquisition times and ``pair_info``'s skew their
-    difference, within ``tolerance_s``.
+    difference, within ``tolerance_s`` (25 ms: a copy late is 38 ms, a wrong partner 114 ms;
+    the emulator's own scheduling delays on a busy machine reach about 16 ms).
     """
     by_digest = {}
     for side, frames in sent.items():
