@@ -327,7 +327,8 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         assert after and b'\x02' not in after, after
         # The steps (+10 s, then -10 s) move stamps and change nothing else: every image sent
         # once, one left and one right per stamp, pairs at the full rate after each step.
-        check_stream(got, sent, 8.0, (marks['step'], marks['ffc']))
+        # (3 s windows: one resync, 0.5 s, would take the rate to 7.3 pairs/s.)
+        check_stream(got, sent, 7.0, (marks['step'], marks['ffc']))
         # After the step back: the same checks; the rate over this last 5 s window (after an
         # FFC, with the node's timers on a clock that went back) measured 5.8 to 8.8 pairs/s.
         check_stream(got, sent, 5.0, (marks['back'] + 0.5, end))
@@ -348,7 +349,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         answer = answers[0].result()
         assert answer is not None and not answer.success and 'right' in answer.message
         assert rig.cameras['left'].stats().get('ffc', 0) == 1
-        check_stream(got, sent, 8.0, (marks['ffc'] + 2.0, marks['back']))
+        check_stream(got, sent, 7.0, (marks['ffc'] + 2.0, marks['back']))
 
 
 # --- memory -----------------------------------------------------------------------------------
