@@ -16,7 +16,7 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rig_helpers import check_stream
+from rig_helpers import check_stream, STAMP_TOLERANCE_S
 from ros_helpers import new_context, spin_for
 from st_stereo.lepton import spi
 from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
@@ -26,19 +26,31 @@ from st_stereo.lepton.reader import LeptonReader
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters, SteppingClock
+from st_stereo.tools.rig_bench import (RigSubscriber, spi_parameters, SteppingClock,
+                                       UNIQUE_PERIOD_S)
 from std_srvs.srv import Trigger
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 RUN_S = 20.0
-# The cameras send 8.8 unique frames/s; on a shared 2-core CI machine the measured pair rate
-# of a 17 s window dipped to 7.2 in some runs (8.8 in most): the tests ask for 7.
-MIN_RATE = 7.0
-# The tests that measure pair rates on real time are opt-in: on the shared 2-core CI machine
-# their rates varied from run to run (8.8 pairs/s in most runs, down to 6.7 in some).
-# Run them with ST_STEREO_RIG_TESTS=1 python3 .ci/dev.py test test/test_lepton_rig.py.
-realtime = pytest.mark.skipif(os.environ.get('ST_STEREO_RIG_TESTS') != '1',
-                              reason='real-time rate tests: set ST_STEREO_RIG_TESTS=1')
+# Two modes. By default (CI) these tests check behaviour on real time: every image was sent,
+# none twice, one left and one right per stamp, pairs within one unique frame, pairs go on
+# (at least FLOW_RATE pairs/s) after each fault, the node survives. Rates and stamp accuracy
+# are timing figures a shared 2-core machine does not hold from run to run (pair rates 6.7-8.8
+# and stamp errors up to 36 ms were seen in clean-clone runs): they are measured by
+# `st-stereo rig-bench` and checked here only in the strict mode, ST_STEREO_RIG_TESTS=1 (the
+# issue's figures: >= 8 pairs/s, stamps within 25 ms, resume within 2 s of a replug).
+STRICT = os.environ.get('ST_STEREO_RIG_TESTS') == '1'
+MIN_RATE = 8.0 if STRICT else 1.0
+FLOW_RATE = 2.0 if STRICT else 1.0
+RESUME_S = 2.0 if STRICT else 6.0
+
+
+def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_PERIOD_S):
+    """``check_stream`` with the mode's timing: stamp accuracy and pair skew bound in strict."""
+    if STRICT:
+        return check_stream(got, sent, min_rate, window, time.time() - time.monotonic(),
+                            max_skew_s=max_skew_s + STAMP_TOLERANCE_S)
+    return check_stream(got, sent, min_rate, window)
 
 
 @contextlib.contextmanager
@@ -106,7 +118,6 @@ def rig_command(rig, executable, *parameters):
 
 
 # --- the emulator behaves like a Lepton ----------------------------------------------------
-@realtime
 @pytest.mark.timeout(120)
 def test_the_emulator_loses_sync_when_a_camera_is_not_clocked_in_time():
     config = CameraConfig('left', seed=3)
@@ -161,7 +172,6 @@ class SlowTransport:
 
 
 # --- the driver and the pipeline on the emulated rig ----------------------------------------
-@realtime
 @pytest.mark.timeout(180)
 @pytest.mark.parametrize('reader', ['process', 'thread'])
 def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader):
@@ -172,11 +182,9 @@ def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader)
             rig, spi_reader=reader)))
         start, end = run_driver(executor, driver)
         sent = rig.collect()
-        # Stamps on the node clock (system time here): each pair's stamp is the midpoint of
-        # the cameras' true acquisition times, and pair_info's skew their difference.
-        offset = time.time() - time.monotonic()
-        rate = check_stream(subscriber.got, sent, MIN_RATE, (start + 3.0, end), offset,
-                            max_skew_s=0.05)
+        # Strict mode: stamps on the node clock (system time here) are the midpoint of the
+        # cameras' true acquisition times, and pair_info's skew their difference.
+        rate = stream_checks(subscriber.got, sent, MIN_RATE, (start + 3.0, end), 0.05)
         assert driver.exit_code == 0 and not driver.last_error
         # Diagnostics saw both cameras at the unique rate, every pair with its skew.
         level, _, values = subscriber.got.statuses['lepton_driver: left camera']
@@ -188,7 +196,6 @@ def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader)
         print(f'\ndriver on the emulated rig, spi_reader {reader}: {rate:.2f} pairs/s')
 
 
-@realtime
 @pytest.mark.timeout(180)
 def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_running():
     # The `stereo_pipeline` executable itself (driver, rectifier, matcher in one process, as
@@ -216,15 +223,14 @@ def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_runn
         assert process.returncode == 0, stderr[-2000:]
         # Discovery takes a moment: judge from the first pair received.
         first = min(t for t, _ in subscriber.got.arrivals)
-        rate = check_stream(subscriber.got, sent, MIN_RATE, (first + 2.0, end),
-                            time.time() - time.monotonic(), max_skew_s=0.05)
+        rate = stream_checks(subscriber.got, sent, MIN_RATE, (first + 2.0, end), 0.05)
         matched = [t for t in clouds if first + 2.0 <= t <= end]
-        assert len(matched) / (end - first - 2.0) >= MIN_RATE - 0.5, 'the matcher fell behind'
+        cloud_rate = len(matched) / (end - first - 2.0)
+        assert cloud_rate >= (MIN_RATE - 0.5 if STRICT else FLOW_RATE), 'the matcher fell behind'
         print(f'\nstereo_pipeline on the emulated rig: {rate:.2f} pairs/s, '
               f'{len(clouds)} point clouds')
 
 
-@realtime
 @pytest.mark.timeout(180)
 def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypatch):
     # Two boards' V4L2 streams on the wall clock behind cv2.VideoCapture (every core frame,
@@ -250,13 +256,11 @@ def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypa
         driver = add(DriverNode(context=context, parameter_overrides=parameters))
         start, end = run_driver(executor, driver, RUN_S + 6.0, [(16.0, unplug), (20.0, replug)])
         sent = {'left': boards['/dev/video0'].sent, 'right': boards['/dev/video2'].sent}
-        check_stream(subscriber.got, sent, MIN_RATE, (start + 3.0, marks['unplug']),
-                     time.time() - time.monotonic(), max_skew_s=0.05)
-        assert first_arrival_after(subscriber.got, marks['replug']) - marks['replug'] < 2.0
+        stream_checks(subscriber.got, sent, MIN_RATE, (start + 3.0, marks['unplug']), 0.05)
+        assert first_arrival_after(subscriber.got, marks['replug']) - marks['replug'] < RESUME_S
         assert driver.streams[0].counters.restarts >= 1 and driver.exit_code == 0
 
 
-@realtime
 @pytest.mark.timeout(180)
 def test_drifting_cameras_pair_within_max_pair_delta_and_count_the_rest():
     # Clocks 6000 ppm apart: their phase slides through the whole 113.6 ms period in 19 s
@@ -270,17 +274,17 @@ def test_drifting_cameras_pair_within_max_pair_delta_and_count_the_rest():
         driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
         start, end = run_driver(executor, driver)
         sent = rig.collect()
-        check_stream(subscriber.got, sent, 0.6 * MIN_RATE, (start + 3.0, end),
-                     time.time() - time.monotonic(), max_skew_s=0.05 + 0.002)
+        # Strict: no pair's true skew beyond max_pair_delta plus the stamps' own error.
+        stream_checks(subscriber.got, sent, 0.6 * MIN_RATE, (start + 3.0, end), 0.05)
         counters = driver.pairing.counters
         unpaired = counters.dropped_left / (counters.pairs + counters.dropped_left)
         print(f'\nphase sweep: {counters.pairs} pairs, {unpaired:.1%} of left frames unpaired')
-        assert 0.05 < unpaired < 0.25
+        if STRICT:
+            assert 0.05 < unpaired < 0.25
         assert counters.skew_abs_max <= 0.05
 
 
 # --- faults: slow boot, unplug / replug, wall-clock step, FFC failure --------------------------
-@realtime
 @pytest.mark.timeout(240)
 def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatch):
     configs = [CameraConfig('left', seed=1, phase_s=0.004, drift_ppm=30.0),
@@ -327,25 +331,26 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         sent = rig.collect()
         got = subscriber.got
         # Slow boot: the right camera NACKs for 1.5 s and boots in 3 s; pairs follow.
-        assert first_arrival_after(got, start) - start < 3.0 + 2.0
+        assert first_arrival_after(got, start) - start < 3.0 + RESUME_S
         # Unplugged for 5 s: pairs resume within 2 s of the replug; the node never died.
-        assert first_arrival_after(got, marks['replug']) - marks['replug'] < 2.0
+        assert first_arrival_after(got, marks['replug']) - marks['replug'] < RESUME_S
         assert driver.exit_code == 0 and not driver.last_error
-        # Diagnostics: ERROR for the left camera while it was gone; after the replug no more
-        # ERROR (WARN while its 5 s frequency window still holds the outage).
+        # Diagnostics: ERROR for the left camera while it was gone; once its frames are back
+        # no more ERROR (WARN while its 5 s frequency window still holds the outage).
         left = [(t, level) for t, name, level in got.history
                 if name == 'lepton_driver: left camera']
         assert any(level == b'\x02' for t, level in left
                    if marks['unplug'] + 2.0 < t < marks['replug'])
-        after = [level for t, level in left if marks['replug'] + 3.0 < t < marks['step']]
+        resumed = first_arrival_after(got, marks['replug'])
+        after = [level for t, level in left if resumed + 1.0 < t < marks['step']]
         assert after and b'\x02' not in after, after
         # The steps (+10 s, then -10 s) move stamps and change nothing else: every image sent
         # once, one left and one right per stamp, pairs at the full rate after each step.
         # Short windows: pairs go on (the rate there varies between runs, docs/lepton.md).
-        check_stream(got, sent, 2.0, (marks['step'], marks['ffc']))
+        stream_checks(got, sent, FLOW_RATE, (marks['step'], marks['ffc']))
         # After the step back: the same checks; the rate over this last 5 s window (after an
         # FFC, with the node's timers on a clock that went back) measured 5.8 to 8.8 pairs/s.
-        check_stream(got, sent, 2.0, (marks['back'] + 0.5, end))
+        stream_checks(got, sent, FLOW_RATE, (marks['back'] + 0.5, end))
         stamps = [stamp for stamp, _, _ in got.images['left']]       # in arrival order
         # Gaps over 0.9 s (a resync costs about 0.5 s; the events below all cost more).
         jumps = [b - a for a, b in zip(stamps, stamps[1:]) if abs(b - a) > 0.9e9]
@@ -364,7 +369,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         assert rig.cameras['left'].stats().get('ffc', 0) == 1
         # Pairs go on after the FFC (2 s window; measured 5.5 to 8.8 pairs/s: not explained
         # yet, see docs/lepton.md).
-        check_stream(got, sent, 2.0, (marks['ffc'] + 2.0, marks['back']))
+        stream_checks(got, sent, FLOW_RATE, (marks['ffc'] + 2.0, marks['back']))
 
 
 # --- memory -----------------------------------------------------------------------------------

@@ -278,9 +278,10 @@ class ProcessCameraStream:
         self._reply_ready = threading.Condition()
         self._stopping = False
         context = multiprocessing.get_context('spawn')
-        self._connection, child = context.Pipe()
+        self._connection, self._child_connection = context.Pipe()
         self._process = context.Process(target=_stream_process_main, name=f'lepton_{name}',
-                                        args=(name, self.arguments, child), daemon=True)
+                                        args=(name, self.arguments, self._child_connection),
+                                        daemon=True)
         self._thread = threading.Thread(target=self._receive, name=f'lepton_{name}_receive',
                                         daemon=True)
         self._send_lock = threading.Lock()
@@ -298,6 +299,8 @@ class ProcessCameraStream:
     def start(self):
         """Start the reader process and the thread that receives its frames."""
         self._process.start()
+        # The child has its copy: this one closed, the child's exit reaches recv as EOF.
+        self._child_connection.close()
         self._thread.start()
         return self
 
@@ -313,6 +316,11 @@ class ProcessCameraStream:
                 message = self._connection.recv()
             except (EOFError, OSError):
                 break
+            except (TypeError, ValueError):
+                # The connection was closed under this recv: only ``stop`` does that.
+                if self._stopping:
+                    return
+                raise
             kind = message[0]
             if kind == 'frame':
                 counters.frames += 1
@@ -378,6 +386,8 @@ class ProcessCameraStream:
             if self._process.is_alive():
                 self._process.kill()
                 self._process.join(1.0)
-        self._connection.close()
+        # The child's end closes with the process, so the receiving thread sees EOF and ends:
+        # wait for it before closing this end (closing under a blocked recv breaks it).
         if self._thread.is_alive():
             self._thread.join(timeout_s)
+        self._connection.close()
