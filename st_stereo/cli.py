@@ -128,13 +128,15 @@ def command_match(args):
     left = read_thermal_image(args.left)
     right = read_thermal_image(args.right)
     model = None
+    valid = {}
     if args.calibration:
         rectifier = StereoRectifier(load_calibration(args.calibration[0]),
                                     load_calibration(args.calibration[1]))
         model = rectifier.model
         if not args.rectified:
             left, right = rectifier.rectify(left, right)
-    result = StereoMatcher(config, model).match(left, right)
+            valid = dict(zip(('left_valid', 'right_valid'), rectifier.valid_masks()))
+    result = StereoMatcher(config, model).match(left, right, **valid)
     if args.out:
         if args.out.endswith('.json'):
             text = result.to_json()
@@ -263,6 +265,25 @@ def command_eval_pipeline(args):
     return 0 if not failed or not args.strict else 1
 
 
+def command_eval_points(args):
+    """Score every point ST publishes, per surface, on the sequences and the recording."""
+    from st_stereo.tools.data import bundled_recording
+    from st_stereo.tools import eval_points
+    config = config_from_assignments(args.set)
+    sequences = [name for name in args.sequences.split(',') if name]
+    recording = None if args.no_recording else bundled_recording()
+    report = eval_points.evaluate(config=config, stride=args.stride, sequences=sequences,
+                                  recording=recording, max_frames=args.max_frames,
+                                  log=None if args.quiet else
+                                  lambda line: print(line, file=sys.stderr))
+    print(eval_points.markdown_report(report))
+    failed = [row for row in eval_points.checks(report) if not row[4]]
+    for name, label, value, target, met in eval_points.checks(report):
+        print(f'{name}: {label}: {100 * value:.2f} % (target {target}): '
+              f'{"met" if met else "NOT met"}')
+    return 1 if failed and args.strict else 0
+
+
 def command_eval_all(args):
     """Every evaluation; writes the Markdown report, figures and JSON."""
     from st_stereo.tools.results import run_all
@@ -354,6 +375,17 @@ def build_parser():
     e.add_argument('--quiet', action='store_true')
     _add_config_option(e)
     e.set_defaults(handler=command_eval_pipeline)
+    e = eval_sub.add_parser('points', help='every published point scored per surface '
+                            '(3-D, strict, disparity range) on the sequences and the recording')
+    e.add_argument('--sequences', default='walk_across,two_people,sit_down,meeting_room')
+    e.add_argument('--stride', type=int, default=2, help='score every N-th frame')
+    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
+    e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
+    e.add_argument('--strict', action='store_true',
+                   help="exit 1 when one of the issue's criteria is not met")
+    e.add_argument('--quiet', action='store_true')
+    _add_config_option(e)
+    e.set_defaults(handler=command_eval_points)
     e = eval_sub.add_parser('calibration', help='st-stereo calibrate on simulated sessions '
                             'with known truth, and ST on the rectified result')
     e.add_argument('--pairs', type=int, default=200, help='pairs per session (default 200)')

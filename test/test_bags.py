@@ -19,7 +19,7 @@ from st_stereo.core.camera_calibration import load_calibration
 from st_stereo.core.fourier import fourier_shift_image_x
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes.bags import BagPlayer, BagRecorder
-from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg
+from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg, POINT_FIELDS
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
@@ -121,7 +121,7 @@ def test_a_bag_written_by_rosbags_alone_replays_through_the_suite(tmp_path, peop
     clouds, published = replay(bag, rate=1.0)
     assert published == 80
     assert len(clouds) >= 15
-    depths = [np.nanmedian(np.frombuffer(data, '<f4').reshape(-1, 6)[:, 2])
+    depths = [np.nanmedian(np.frombuffer(data, '<f4').reshape(-1, len(POINT_FIELDS))[:, 2])
               for data in clouds.values()]
     assert np.median(depths) == pytest.approx(depth, rel=0.01)
 
@@ -142,7 +142,7 @@ def test_driver_bag_source_feeds_the_suite(tmp_path, people_80x60):
         spin_for(executor, 1.0)
         clouds = nodes[-1].by_stamp
         assert driver.published >= 14 and len(clouds) >= 10
-        depths = [np.nanmedian(np.frombuffer(d, '<f4').reshape(-1, 6)[:, 2])
+        depths = [np.nanmedian(np.frombuffer(d, '<f4').reshape(-1, len(POINT_FIELDS))[:, 2])
                   for d in clouds.values()]
         assert np.median(depths) == pytest.approx(3.0, rel=0.01)
         first = min(clouds)

@@ -174,8 +174,12 @@ def test_image_messages_round_trip():
 def test_cloud_layout(ros):
     from st_stereo.nodes.conversions import point_cloud
     cloud = point_cloud(Header(), np.ones((3, 3)), np.ones(3), np.ones(3), np.ones(3))
-    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 24, 72)
+    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 28, 84)
     assert [f.offset for f in cloud.fields][:3] == [0, 4, 8] and cloud.is_dense
+    assert [f.name for f in cloud.fields][-1] == 'confidence'
+    values = point_cloud_array(point_cloud(Header(), np.ones((2, 3)), np.ones(2), np.ones(2),
+                                           np.ones(2), np.array([0.25, 0.75])))
+    assert values[:, -1].tolist() == [0.25, 0.75]
     assert not hasattr(Image, 'nonexistent')
 
 

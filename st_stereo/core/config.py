@@ -63,6 +63,10 @@ class STConfig:
                                     low=3, high=21, odd=True)
     min_similarity: float = _field(0.7, 'minimum Lades similarity of an accepted match',
                                    low=0.0, high=1.0)
+    min_distinctiveness: float = _field(
+        0.0, 'reject a rough match whose Lades similarity beats the best candidate more than '
+        '1 px away on the row by less than this (weak texture, edges along the rows, periodic '
+        'structure; docs/results.md); 0 = off', low=0.0, high=1.0)
     candidate_ratio: float = _field(0.5, 'a right pixel is a candidate when its M exceeds '
                                     'candidate_ratio * gamma', low=0.0, high=1.0)
     disparity_min: int = _field(0, 'smallest disparity searched, pixels', low=0, high=1024)
@@ -104,6 +108,18 @@ class STConfig:
                                   '(2 measured best: it keeps rough matches 1.5 px off)',
                                   low=0.1, high=2.5)
 
+    # --- 4. What is published: plausible range and confidence ---------------------------
+    min_range_m: float = _field(0.3, 'nearest depth published, metres (with a calibration: '
+                                'turned into the largest admissible disparity)', low=0.01,
+                                high=1000.0)
+    max_range_m: float = _field(10.0, 'farthest depth published, metres (with a calibration: '
+                                'the smallest admissible disparity; a room a few metres deep '
+                                'needs no more)', low=0.01, high=1e6)
+    min_confidence: float = _field(0.35, 'drop matches whose confidence (POC peak height times '
+                                   'Lades distinctiveness, 0..1) is below this; 0 keeps all '
+                                   '(docs/results.md: outliers against the share kept)',
+                                   low=0.0, high=1.0)
+
     def __post_init__(self):
         """Validate every field against its metadata."""
         hints = typing.get_type_hints(type(self))
@@ -112,6 +128,9 @@ class STConfig:
         if self.disparity_min > self.disparity_max:
             raise ValueError(f'disparity_min ({self.disparity_min}) must not exceed '
                              f'disparity_max ({self.disparity_max})')
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError(f'min_range_m ({self.min_range_m}) must be less than max_range_m '
+                             f'({self.max_range_m})')
 
     @property
     def noise_k(self):

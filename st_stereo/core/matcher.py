@@ -85,7 +85,10 @@ class MatchResult:
     similarity : ndarray, shape (n,)
         Lades similarity of the rough match.
     poc_peak : ndarray, shape (n,)
-        Height of the POC peak (0..1): the confidence of the sub-pixel estimate.
+        Height of the POC peak (0..1).
+    confidence : ndarray, shape (n,)
+        Confidence of each match, 0..1 (``match_confidence``: POC peak height times the rough
+        match's distinctiveness); ``min_confidence`` drops the matches below it.
     points : ndarray, shape (n, 3) or None
         X, Y, Z in metres in the left optical frame, when a stereo model was given.
     counts : dict
@@ -110,6 +113,7 @@ class MatchResult:
     image_shape: tuple
     feature_images: np.ndarray = None
     rough: RoughMatches = None
+    confidence: np.ndarray = None
 
     def __len__(self):
         """Return the number of matches."""
@@ -128,7 +132,8 @@ class MatchResult:
                    'disparity': float(self.disparity[i]),
                    'x_right': float(self.x_right[i]),
                    'similarity': float(self.similarity[i]),
-                   'poc_peak': float(self.poc_peak[i])}
+                   'poc_peak': float(self.poc_peak[i]),
+                   'confidence': float(self.confidence[i])}
             if self.points is not None:
                 row.update(zip(('X', 'Y', 'Z'), map(float, self.points[i])))
             rows.append(row)
@@ -142,7 +147,8 @@ class MatchResult:
 
     def to_csv(self):
         """Return the matches as CSV text with a header row."""
-        fields = ['x_left', 'y', 'disparity', 'x_right', 'similarity', 'poc_peak']
+        fields = ['x_left', 'y', 'disparity', 'x_right', 'similarity', 'poc_peak',
+                  'confidence']
         if self.points is not None:
             fields += ['X', 'Y', 'Z']
         buffer = io.StringIO()
@@ -180,7 +186,21 @@ class StereoMatcher:
         """Feature images M of a validated pair, computed in one batch, shape (2, rows, cols)."""
         return feature_strength(np.stack((left, right)), self.config)
 
-    def match(self, left, right, disparity_prior=None):
+    def disparity_bounds(self):
+        """
+        Admissible sub-pixel disparities ``(low, high)`` of the plausible depth range.
+
+        With a stereo model, ``max_range_m`` and ``min_range_m`` become disparities (eq. 1,
+        ``d = fx B / Z + (cx - cx_right)``); without one, only the searched range applies.
+        """
+        config = self.config
+        if self.model is None:
+            return float(config.disparity_min), float(config.disparity_max)
+        low = float(self.model.disparity_of_depth(config.max_range_m))
+        high = float(self.model.disparity_of_depth(config.min_range_m))
+        return low, high
+
+    def match(self, left, right, disparity_prior=None, left_valid=None, right_valid=None):
         """
         Match a rectified pair.
 
@@ -191,6 +211,10 @@ class StereoMatcher:
         disparity_prior : None, float or ndarray (rows, cols), optional
             Expected disparity (NaN = unknown), e.g. from the previous frame; restricts the
             search to ``prior +- prior_radius``.
+        left_valid, right_valid : ndarray of bool (rows, cols), optional
+            Pixels that hold image data (rectification leaves a border without any): no
+            feature or candidate whose window reaches outside them, and the rest is filled
+            from the nearest valid pixel before the features are computed (no invented edge).
 
         Returns
         -------
@@ -206,18 +230,27 @@ class StereoMatcher:
         config = self.config
         timings = {}
         counts = {}
+        margin = config.poc_window // 2
+        left_inside = valid_interior(left_valid, left.shape, margin, 'left')
+        right_inside = valid_interior(right_valid, left.shape, margin, 'right')
+        left = fill_invalid(left, left_valid)
+        right = fill_invalid(right, right_valid)
 
         tick = time.perf_counter()
         moments = self.feature_images(left, right)
-        margin = config.poc_window // 2
         features, border = feature_mask(moments[0], config.gamma, margin)
+        if left_inside is not None:
+            counts['features_invalid_region'] = int((features & ~left_inside).sum())
+            features &= left_inside
+        else:
+            counts['features_invalid_region'] = 0
         counts['features'] = int(features.sum())
         counts['features_border'] = border
         timings['features'] = _elapsed_ms(tick)
 
         tick = time.perf_counter()
         rough = rough_match(moments[0], moments[1], features, config, disparity_prior,
-                            right_margin=margin)
+                            right_margin=margin, right_valid=right_inside)
         counts['rough_matches'] = len(rough)
         counts.update({f'rejected_{key}': rough.rejected[key] for key in REJECTION_KEYS})
         timings['rough_matching'] = _elapsed_ms(tick)
@@ -232,7 +265,15 @@ class StereoMatcher:
         counts.update({f'rejected_{key}': refined.rejected[key]
                        for key in SUBPIXEL_REJECTION_KEYS})
         counts['clamped_to_zero'] = refined.clamped_to_zero
-        keep = refined.accepted
+        keep = refined.accepted.copy()
+        low, high = self.disparity_bounds()
+        outside = keep & ((refined.disparity < low) | (refined.disparity > high))
+        counts['rejected_range'] = int(outside.sum())
+        keep &= ~outside
+        confidence = match_confidence(refined.peak_value, rough.distinctiveness)
+        unconfident = keep & (confidence < config.min_confidence)
+        counts['rejected_confidence'] = int(unconfident.sum())
+        keep &= ~unconfident
         if config.uniqueness:
             unique = enforce_uniqueness(rough.y[keep], rough.x_left[keep],
                                         rough.x_left[keep] - refined.disparity[keep],
@@ -255,7 +296,52 @@ class StereoMatcher:
         return MatchResult(x_left=x_left, y=y, disparity=disparity,
                            similarity=rough.similarity[keep], poc_peak=refined.peak_value[keep],
                            points=points, counts=counts, timings_ms=timings,
-                           image_shape=left.shape, feature_images=moments, rough=rough)
+                           image_shape=left.shape, feature_images=moments, rough=rough,
+                           confidence=confidence[keep])
+
+
+DISTINCTIVENESS_SCALE = 0.1
+
+
+def match_confidence(poc_peak, distinctiveness, scale=DISTINCTIVENESS_SCALE):
+    """
+    Confidence of matches, 0..1: POC peak height times the rough match's distinctiveness.
+
+    ``clip(peak, 0, 1) * clip(distinctiveness / scale, 0, 1)``: the sub-pixel peak (eq. 11's
+    maximum, how well one shift explains the windows) and how much the Lades similarity
+    (eq. 9) of the rough match beats the best candidate more than 1 px away. Measured on the
+    recording (docs/results.md): keeping the 90 % most confident matches cuts the 3-D outliers
+    from 5.4 to 2.3 %, better than either factor alone (3.7 % by the peak, 2.5 % by the
+    distinctiveness); the Lades similarity itself and a support-weighted POC re-check did not
+    separate the outliers.
+    """
+    peak = np.clip(np.asarray(poc_peak, dtype=np.float64), 0.0, 1.0)
+    distinct = np.clip(np.asarray(distinctiveness, dtype=np.float64) / scale, 0.0, 1.0)
+    return peak * distinct
+
+
+def valid_interior(valid, shape, margin, name):
+    """Pixels whose ``2 margin + 1`` window lies inside the valid region (None: all)."""
+    if valid is None:
+        return None
+    valid = np.asarray(valid, dtype=bool)
+    if valid.shape != shape:
+        raise ValueError(f'{name} valid mask: expected shape {shape}, got {valid.shape}')
+    from scipy import ndimage
+    return ndimage.binary_erosion(valid, np.ones((2 * margin + 1,) * 2, dtype=bool),
+                                  border_value=1)
+
+
+def fill_invalid(image, valid):
+    """Copy of ``image`` with invalid pixels set to their nearest valid pixel's value."""
+    if valid is None:
+        return image
+    valid = np.asarray(valid, dtype=bool)
+    if valid.all() or not valid.any():
+        return image
+    from scipy import ndimage
+    _, (rows, cols) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    return image[rows, cols]
 
 
 def _elapsed_ms(start):

@@ -25,6 +25,13 @@ def rectification_maps(calibration):
                                        cv2.CV_32FC1)
 
 
+def valid_region(maps, shape):
+    """Pixels of a rectification map whose source point lies on a raw pixel's area."""
+    rows, cols = shape
+    map_x, map_y = maps
+    return (map_x >= -0.5) & (map_x <= cols - 0.5) & (map_y >= -0.5) & (map_y <= rows - 0.5)
+
+
 class StereoRectifier:
     """Rectify raw pairs of a calibrated rig; keeps raw counts (float32 output, no 8-bit)."""
 
@@ -42,14 +49,32 @@ class StereoRectifier:
         """(rows, cols) of the images this rectifier accepts."""
         return self.left.height, self.left.width
 
+    def valid_masks(self):
+        """
+        Rectified pixels that sample inside the raw image, (left, right) bool (rows, cols).
+
+        Outside them a rectified image has no data: ``rectify`` leaves them 0 (as image_proc
+        does) and the matcher must not find features there (``StereoMatcher.match``'s
+        ``left_valid`` / ``right_valid``).
+        """
+        return tuple(valid_region(maps, self.shape) for maps in (self.left_maps, self.right_maps))
+
+    def valid_keywords(self):
+        """``valid_masks`` as the keywords of ``StereoMatcher.match``."""
+        left, right = self.valid_masks()
+        return {'left_valid': left, 'right_valid': right}
+
     def rectify_one(self, image, maps, name):
-        """Rectify one image with bilinear interpolation; border pixels replicate the edge."""
+        """Rectify one image with bilinear interpolation; pixels without data are 0."""
+        valid = valid_region(maps, self.shape)
         image = np.asarray(image)
         if image.shape != self.shape:
             raise ValueError(f'{name} image is {image.shape[1]}x{image.shape[0]}, the '
                              f'calibration is {self.shape[1]}x{self.shape[0]}')
-        return cv2.remap(image.astype(np.float32), maps[0], maps[1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE)
+        rectified = cv2.remap(image.astype(np.float32), maps[0], maps[1], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+        rectified[~valid] = 0.0
+        return rectified
 
     def rectify(self, left, right):
         """Rectify a raw pair; returns float32 images in raw-count units."""

@@ -16,7 +16,8 @@ import numpy as np
 
 TINY = 1e-12
 
-REJECTION_KEYS = ('no_candidate', 'similarity', 'left_right', 'ordering', 'continuity')
+REJECTION_KEYS = ('no_candidate', 'similarity', 'ambiguous', 'left_right', 'ordering',
+                  'continuity')
 
 
 def lades_similarity(window_a, window_b):
@@ -118,13 +119,19 @@ def lades_similarity_volume(left_moments, right_moments, disparities, window):
 
 @dataclasses.dataclass
 class RoughMatches:
-    """Integer matches of left features: row, left column, integer disparity, similarity."""
+    """
+    Integer matches of left features: row, left column, integer disparity, similarity.
+
+    ``distinctiveness``: similarity minus the best similarity more than 1 px away on the row
+    (``runner_up_similarity``; +inf for a match without rival, -inf without room for one).
+    """
 
     y: np.ndarray
     x_left: np.ndarray
     disparity: np.ndarray
     similarity: np.ndarray
     rejected: dict
+    distinctiveness: np.ndarray = None
 
     @property
     def x_right(self):
@@ -133,8 +140,9 @@ class RoughMatches:
 
     def subset(self, keep):
         """Return the matches where ``keep`` is true (rejection counts are shared)."""
+        distinctiveness = None if self.distinctiveness is None else self.distinctiveness[keep]
         return RoughMatches(self.y[keep], self.x_left[keep], self.disparity[keep],
-                            self.similarity[keep], self.rejected)
+                            self.similarity[keep], self.rejected, distinctiveness)
 
     def __len__(self):
         """Return the number of matches."""
@@ -183,6 +191,30 @@ def _best_candidates(volume, valid):
     best = masked.argmax(axis=0)
     best_value = np.take_along_axis(masked, best[None], axis=0)[0]
     return best, best_value
+
+
+def runner_up_similarity(volume, valid, searchable, best, y, x, exclusion=1):
+    """
+    Best similarity of each left pixel at a disparity more than ``exclusion`` px from its best.
+
+    The distinctiveness of a rough match (paper 2.3 takes the most similar candidate; one
+    barely more similar than a candidate two pixels away is poorly located, and one as similar
+    as a candidate elsewhere on the row is a guess): weak texture gives a flat similarity
+    curve, an edge parallel to the rows or periodic structure a second peak as high as the
+    first. ``searchable`` (D, rows, cols) marks the disparities the image borders leave for
+    each pixel: where none is left beyond ``exclusion`` the result is +inf (nothing shows
+    that the match is located: it is rejected, e.g. a row edge at the image border); where
+    some are left but none holds a candidate, -inf (the match is the only one: distinct).
+    (Measured: the runner-up among the other local maxima only, which ignores flat curves,
+    separated outliers far worse.)
+    """
+    scores = np.where(valid[:, y, x], volume[:, y, x], -np.inf)
+    index = np.arange(volume.shape[0])[:, None]
+    scores = np.where(np.abs(index - best[y, x][None]) <= exclusion, -np.inf, scores)
+    if not len(scores):
+        return np.full(len(y), np.inf)
+    rivals = searchable[:, y, x] & (np.abs(index - best[y, x][None]) > exclusion)
+    return np.where(rivals.any(axis=0), scores.max(axis=0), np.inf)
 
 
 def enforce_uniqueness(y, x_left, x_right, similarity, tolerance):
@@ -295,7 +327,7 @@ def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_nei
 
 
 def rough_match(left_moments, right_moments, left_features, config, prior=None,
-                right_margin=0):
+                right_margin=0, right_valid=None):
     """
     Integer matching of left features along rows under the paper's constraints.
 
@@ -312,6 +344,8 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
     right_margin : int
         Right candidates must lie at least this far from the left and right image borders
         (the sub-pixel window must fit).
+    right_valid : ndarray of bool, optional
+        Right pixels allowed as candidates (their window inside the image data).
 
     Returns
     -------
@@ -326,11 +360,14 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
     if not left_features.any() or len(disparities) == 0:
         rejected['no_candidate'] = int(left_features.sum())
         empty = np.zeros(0, dtype=np.int64)
-        return RoughMatches(empty, empty, empty, np.zeros(0), rejected)
+        return RoughMatches(empty, empty, empty, np.zeros(0), rejected, np.zeros(0))
     volume = lades_similarity_volume(left_moments, right_moments, disparities,
                                      config.similarity_window)
     candidate_level = config.candidate_ratio * config.gamma
-    right_valid = right_moments > candidate_level
+    candidates = right_moments > candidate_level
+    if right_valid is not None:
+        candidates &= right_valid
+    right_valid = candidates
     if right_margin:
         right_valid[:, :right_margin] = False
         right_valid[:, cols - right_margin:] = False
@@ -349,6 +386,15 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
         return matches.subset(keep)
 
     matches = apply('similarity', matches.similarity >= config.min_similarity)
+    inside = np.ones((rows, cols), dtype=bool)
+    if right_margin:
+        inside[:, :right_margin] = False
+        inside[:, cols - right_margin:] = False
+    searchable = shifted_stack(inside, disparities) & admissible
+    runner_up = runner_up_similarity(volume, valid, searchable, best, matches.y, matches.x_left)
+    matches.distinctiveness = matches.similarity - runner_up
+    if config.min_distinctiveness > 0:
+        matches = apply('ambiguous', matches.distinctiveness >= config.min_distinctiveness)
     if config.left_right_check:
         valid_left = left_moments > candidate_level
         matches = apply('left_right', left_right_consistent(

@@ -87,15 +87,16 @@ def rectified_camera_info(msg, header):
     return out
 
 
-POINT_FIELDS = ('x', 'y', 'z', 'disparity', 'similarity', 'intensity')
+POINT_FIELDS = ('x', 'y', 'z', 'disparity', 'similarity', 'intensity', 'confidence')
 
 
-def point_cloud(header, points, disparity, similarity, intensity):
+def point_cloud(header, points, disparity, similarity, intensity, confidence=None):
     """
     Build a sparse sensor_msgs/PointCloud2 of the matches.
 
-    Fields float32 x, y, z (offsets 0, 4, 8), disparity, similarity, intensity; height 1,
-    width N, is_dense when no NaN.
+    Fields float32 x, y, z (offsets 0, 4, 8), disparity, similarity, intensity, confidence
+    (0..1, ``MatchResult.confidence``; NaN when not given); height 1, width N, is_dense when
+    no NaN.
     """
     count = len(disparity)
     data = np.empty((count, len(POINT_FIELDS)), dtype='<f4')
@@ -104,6 +105,7 @@ def point_cloud(header, points, disparity, similarity, intensity):
         data[:, 3] = disparity
         data[:, 4] = similarity
         data[:, 5] = intensity
+        data[:, 6] = np.nan if confidence is None else confidence
     msg = PointCloud2()
     msg.header = header
     msg.height = 1
@@ -113,7 +115,7 @@ def point_cloud(header, points, disparity, similarity, intensity):
     msg.is_bigendian = False
     msg.point_step = 4 * len(POINT_FIELDS)
     msg.row_step = msg.point_step * count
-    msg.is_dense = bool(np.isfinite(data).all())
+    msg.is_dense = bool(np.isfinite(data[:, :3]).all())
     msg.data = data.tobytes()
     return msg
 
@@ -124,16 +126,22 @@ def point_cloud_array(msg):
 
 
 def disparity_image(header, shape, x_left, y, disparity, focal, baseline, min_disparity,
-                    max_disparity, valid_window=None):
+                    max_disparity, valid_window=None, disparity_offset=0.0):
     """
     Sparse stereo_msgs/DisparityImage: 32FC1, invalid pixels below ``min_disparity``.
+
+    Values are ``d - (cx_left - cx_right)`` (``disparity_offset``), as stereo_image_proc
+    publishes them, so that ``Z = f T / value`` holds for every consumer; ``min_disparity``
+    and ``max_disparity`` are given in the same terms.
 
     ``delta_d`` is the smallest disparity step the matcher resolves (continuous: 1/64 px is
     reported, finer than any realistic sub-pixel error).
     """
     rows, cols = shape
+    min_disparity = float(min_disparity) - disparity_offset
+    max_disparity = float(max_disparity) - disparity_offset
     image = np.full((rows, cols), min_disparity - 1.0, dtype=np.float32)
-    image[y, x_left] = disparity
+    image[y, x_left] = np.asarray(disparity, dtype=np.float64) - disparity_offset
     msg = DisparityImage()
     msg.header = header
     msg.image = image_to_msg(image, header, '32FC1')

@@ -25,6 +25,14 @@ from stereo_msgs.msg import DisparityImage
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 
+INTEGER_ENCODINGS = ('mono8', 'mono16', '8UC1', '16UC1')
+
+
+def data_mask(msg, image):
+    """Pixels with data: in an integer rectified image 0 means none (image_proc, rectifier)."""
+    return image != 0 if msg.encoding in INTEGER_ENCODINGS else None
+
+
 class MatcherNode(Node):
     """Thin wrapper: messages -> StereoMatcher -> messages."""
 
@@ -70,7 +78,8 @@ class MatcherNode(Node):
             model = StereoModel.from_projection_matrices(left_info.p, right_info.p)
             matcher = self.matcher
             matcher.model = model
-            result = matcher.match(left, right)
+            result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
+                                   right_valid=data_mask(right_msg, right))
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
@@ -79,14 +88,16 @@ class MatcherNode(Node):
         points = result.points if result.points is not None else np.zeros((0, 3))
         intensity = left[result.y, result.x_left] if len(result) else np.zeros(0)
         self.points_pub.publish(conversions.point_cloud(header, points, result.disparity,
-                                                        result.similarity, intensity))
+                                                        result.similarity, intensity,
+                                                        result.confidence))
         config = self.config
+        low, high = matcher.disparity_bounds()
         self.disparity_pub.publish(conversions.disparity_image(
             header, left.shape, result.x_left, result.y, result.disparity, model.fx,
-            model.baseline, config.disparity_min, config.disparity_max,
+            model.baseline, max(low, config.disparity_min), min(high, config.disparity_max),
             (config.poc_window // 2, config.poc_window // 2,
              left.shape[1] - 2 * (config.poc_window // 2),
-             left.shape[0] - 2 * (config.poc_window // 2))))
+             left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset))
         self.counts['matched'] += 1
         now = time.time()
         self.frequency.tick(now)

@@ -161,32 +161,33 @@ def run_suite(argv=None):
 
 
 def print_truth_comparison(monitor, truth, matcher):
-    """Compare the received point clouds with a recording's ground truth, as eval pipeline."""
+    """Score every received point against a recording's ground truth, per surface."""
+    from st_stereo.core.triangulation import project
     from st_stereo.sim.recording import frame_truth
-    from st_stereo.tools.eval_pipeline import MethodTally, points_to_matches
+    from st_stereo.sim.scoring import PointTally, score_points
     model = matcher.matcher.model
     if model is None:
         return
     stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
-    tally = MethodTally()
+    tally = PointTally()
     for stamp, points in monitor.clouds.items():
         # Replayed stamps go through float seconds: match within a microsecond.
         index = int(np.argmin(np.abs(stamps - stamp)))
         if abs(int(stamps[index]) - stamp) > 1000:
             continue
-        xy, disparity = points_to_matches(points, model)
-        tally.add(model, frame_truth(truth, index), xy, disparity, 0.0)
+        points = np.asarray(points, dtype=np.float64)[:, :3]
+        u, v, disparity = project(model, points)
+        tally.add(score_points(model, frame_truth(truth, index), u, v, disparity, points))
     if not tally.frames:
         print('  ground truth: no point cloud matched a ground-truth stamp')
         return
-    row = tally.summary()
-    print(f'  ground truth, {tally.frames} clouds: {row["correct_per_frame"]:.0f} correct '
-          f'points per cloud (|dZ| <= 0.3 m); at 2.5-4.5 m median |dZ| / Z '
-          f'{row["relative_error_median_in_range"] * 100:.2f} %, outliers '
-          f'{row["outlier_rate_in_range"] * 100:.1f} % (+-1 px: '
-          f'{row["outlier_rate_in_range_1px"] * 100:.1f} %); people: Z '
-          f'{row["person_z_mean_m"]:.3f} +- {row["person_z_std_m"]:.3f} m (true '
-          f'{row["person_z_true_mean_m"]:.3f} m)')
+    print(f'  ground truth, {tally.frames} clouds, every point (outlier: farther than 0.3 m '
+          f'from the true surface of its pixel and its 8 neighbours):')
+    for row in tally.rows(truth['label_names']):
+        print(f'    {row["surface"]:>9}: {row["points"]:6d} points, outliers '
+              f'{100 * row["outliers_3d"]:5.1f} %, median |dZ|/Z '
+              f'{100 * row["relative_error_median"]:5.2f} %, correct per cloud '
+              f'{row["correct_per_frame"]:6.1f}')
 
 
 def print_summary(driver, matcher, monitor, depth):

@@ -73,13 +73,15 @@ class RectifierNode(Node):
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
             return
-        header = left_msg.header        # both rectified streams: the left optical frame
-        for pub, image in zip(self.image_pubs, (left, right)):
+        # Each rectified stream keeps its camera's header (stamp and optical frame), as
+        # image_proc does; pixels without data (outside the raw image) are 0.
+        headers = (left_msg.header, right_msg.header)
+        for pub, image, header in zip(self.image_pubs, (left, right), headers):
             pub.publish(conversions.image_to_msg(np.clip(np.rint(image), 0, 65535), header))
-        for pub, info in zip(self.info_pubs, (left_info, right_info)):
+        for pub, info, header in zip(self.info_pubs, (left_info, right_info), headers):
             pub.publish(conversions.rectified_camera_info(info, header))
         if self.mono8_pubs is not None:
-            for pub, image in zip(self.mono8_pubs, (left, right)):
+            for pub, image, header in zip(self.mono8_pubs, (left, right), headers):
                 pub.publish(conversions.image_to_msg(contrast_stretch_u8(image), header,
                                                      'mono8'))
         self.counts['rectified'] += 1

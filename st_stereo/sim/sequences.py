@@ -23,7 +23,7 @@ from st_stereo.sim.sensor import LeptonSensor, SensorModel
 
 AMBIENT = 21.0
 LABELS = {0: 'floor', 1: 'wall', 2: 'ceiling', 3: 'desk', 4: 'screen', 5: 'radiator',
-          6: 'panel', 7: 'cabinet', 8: 'chair'}
+          6: 'panel', 7: 'cabinet', 8: 'chair', 9: 'table', 10: 'shelf', 11: 'heater'}
 PERSON_LABEL_BASE = 100
 STRIDE_M = 1.4
 
@@ -40,7 +40,8 @@ def load_textures(blur_texels=1.0):
     return {name: normalised_texture(ndimage.gaussian_filter(
                 read_thermal_image(shared_frame(file)), blur_texels, mode='wrap'))
             for name, file in (('floor', 'floor_heating.png'), ('wall', 'ducks.png'),
-                               ('panel', 'panel_flir_c2_80x60.png'))}
+                               ('panel', 'panel_flir_c2_80x60.png'),
+                               ('car', 'moving_car.png'))}
 
 
 def office_room(textures, chair=(-0.6, 3.3)):
@@ -85,6 +86,48 @@ def office_room(textures, chair=(-0.6, 3.3)):
             ThermalMaterial(base=AMBIENT + 0.6, ambient=AMBIENT, seed=27)),
     ]
     return shell, objects
+
+
+def meeting_room(textures):
+    """
+    Build the held-out room: another floor texture, a warmer room, other furniture.
+
+    6 m x 6 m, 3 m high, 24 deg C; the floor carries the shared car frame's texture at
+    another scale and contrast, the walls the floor-heating frame's; a long table, a
+    bookshelf, a fan heater. No parameter or mechanism was chosen on it.
+    """
+    ambient = 24.0
+    floor = ThermalMaterial(base=ambient - 1.0, gradient=(0.05, -0.1, 0.0),
+                            texture=textures['car'], texel_m=0.05, texture_kelvin=0.9,
+                            ambient=ambient, seed=31)
+
+    def wall(axes, seed):
+        return ThermalMaterial(base=ambient + 0.5, gradient=(0.0, 0.0, 0.6),
+                               texture=textures['floor'], texture_axes=axes, texel_m=0.04,
+                               texture_kelvin=0.4, ambient=ambient, seed=seed)
+    side_axes = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    end_axes = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    shell = RoomShell(
+        low=(-3.0, -0.5, 0.0), high=(3.0, 5.5, 3.0),
+        materials={'x-': wall(side_axes, 32), 'x+': wall(side_axes, 33),
+                   'y-': wall(end_axes, 34), 'y+': wall(end_axes, 35), 'floor': floor,
+                   'ceiling': ThermalMaterial(base=ambient + 2.0, ambient=ambient)},
+        labels={'x-': 1, 'x+': 1, 'y-': 1, 'y+': 1, 'floor': 0, 'ceiling': 2})
+    grille = np.tile(np.sin(np.linspace(0, 2 * np.pi, 6, endpoint=False))[:, None], (1, 6))
+    objects = [
+        Box('table', 9, (-0.9, 3.6, 0.0), (0.9, 4.4, 0.76),
+            ThermalMaterial(base=ambient - 0.6, noise_kelvin=0.2, ambient=ambient, seed=41)),
+        Box('shelf', 10, (2.6, 1.0, 0.0), (3.0, 3.2, 2.0),
+            ThermalMaterial(base=ambient - 0.2, gradient=(0.0, 0.0, 0.5), noise_kelvin=0.25,
+                            ambient=ambient, seed=42)),
+        Box('heater', 11, (-2.9, 4.6, 0.0), (-2.5, 5.0, 0.5),
+            ThermalMaterial(base=45.0, texture=grille, texture_axes=side_axes, texel_m=0.02,
+                            texture_kelvin=3.0, ambient=ambient, seed=43)),
+    ]
+    return shell, objects
+
+
+ROOMS = {'office': office_room, 'meeting_room': meeting_room}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,6 +188,7 @@ class SequenceSpec:
     fps: float = 8.7
     rig: RigGeometry = RigGeometry()
     ffc_at_s: tuple = (60.0, 200.0)
+    room: str = 'office'
 
     @property
     def frame_times(self):
@@ -190,6 +234,16 @@ def standard_sequences():
             (_walker([(1.5, 2.2), (-1.0, 2.5), (-1.2, 4.0), (1.2, 3.9), (1.0, 2.4)], tall,
                      speed=0.9), sitter),
             duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0)),
+        # Held out: never used to choose a parameter or a mechanism (docs/results.md).
+        'meeting_room': SequenceSpec(
+            'meeting_room', 'held out: another room, three people (two walk, one stands)',
+            (_walker([(-1.6, 2.4), (1.4, 3.0), (1.6, 4.6)], tall, speed=1.0),
+             _walker([(1.8, 4.8), (-0.4, 2.6)], short, speed=0.8, start=1.0),
+             PersonScript((Keyframe(0.0, -1.2, 4.0), Keyframe(8.0, -1.2, 4.0)),
+                          people.PersonLook(height_m=1.72, skin=33.5, top=29.0,
+                                            trousers=28.0, seed=3),
+                          heading_rad=-math.pi * 0.3)),
+            duration_s=8.0, rig=realistic_rig(), room='meeting_room'),
     }
 
 
@@ -201,7 +255,7 @@ class SequenceRenderer:
         self.textures = textures if textures is not None else load_textures()
         self.supersample = supersample
         self.noise = noise
-        self.shell, self.furniture = office_room(self.textures)
+        self.shell, self.furniture = ROOMS[spec.room](self.textures)
         shape = (spec.rig.height, spec.rig.width)
         self.sensors = [
             LeptonSensor(SensorModel(seed=1, ffc_first_s=spec.ffc_at_s[0]), shape),

@@ -26,3 +26,16 @@ def shared_thermal_dir():
 def shared_frame(name=DEFAULT_FRAME):
     """Path of one shared frame."""
     return shared_thermal_dir() / name
+
+
+def bundled_recording():
+    """Directory of the bundled recording: the package share, or the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        share = pathlib.Path(get_package_share_directory('st_stereo')) / 'data' / 'recordings'
+    except (ImportError, LookupError, OSError):
+        share = None
+    for base in (share, pathlib.Path(__file__).resolve().parents[2] / 'data' / 'recordings'):
+        if base is not None and (base / 'office' / 'bag').is_dir():
+            return base / 'office'
+    raise FileNotFoundError('the bundled recording data/recordings/office was not found')

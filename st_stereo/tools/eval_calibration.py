@@ -140,7 +140,8 @@ def st_accuracy(rig, calibration_sets, sequence='walk_across', frames=6, config=
         frame = renderer.frame(t, with_truth=False)
         scene, _ = renderer.scene(t)
         for name, (rectifier, matcher, left_calibration) in setups.items():
-            result = matcher.match(*rectifier.rectify(frame['left'], frame['right']))
+            result = matcher.match(*rectifier.rectify(frame['left'], frame['right']),
+                                   **rectifier.valid_keywords())
             for store, values in zip(collected[name],
                                      range_errors(result, left_calibration, cameras, scene)):
                 store.append(values)

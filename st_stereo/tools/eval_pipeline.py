@@ -174,7 +174,7 @@ def evaluate_sequence(spec, config=None, stride=1, textures=None, progress=None,
         left, right = rectifier.rectify(frame['left'], frame['right'])
         truth = frame['truth']
         start = time.perf_counter()
-        result = matcher.match(left, right)
+        result = matcher.match(left, right, **rectifier.valid_keywords())
         st_ms = (time.perf_counter() - start) * 1e3
         tallies['ST'].add(model, truth, np.column_stack([result.x_left, result.y]),
                           result.disparity, st_ms)

@@ -102,6 +102,15 @@ def run_all(out_path, quick=False, progress_factory=None, log=print):
     results['pipeline'] = report
     ep.plot_boxes(tallies, figures / 'pipeline_z_error.png')
 
+    # 5. Every point a tracker receives, per surface (issue 12), and error overlays.
+    from st_stereo.tools import eval_points
+    from st_stereo.tools.data import bundled_recording
+    log('scoring every point per surface')
+    results['points'] = eval_points.evaluate(
+        stride=8 if quick else 2, recording=bundled_recording(),
+        max_frames=4 if quick else None)
+    eval_points.error_figure(figures / 'points_error.png')
+
     results['seconds'] = time.time() - started
     with open(figures / 'results.json', 'w', encoding='utf-8') as stream:
         json.dump(results, stream, indent=1, default=float)
@@ -155,6 +164,7 @@ def render_markdown(results, figures):
     """Return the report's Markdown."""
     from st_stereo.tools import eval_features as ef
     from st_stereo.tools import eval_pipeline as ep
+    from st_stereo.tools import eval_points
     features = results['features']
     quick = ' (quick run: fewer repeats, shifts and frames)' if results['quick'] else ''
     return f"""# Paper reproduction: every table and figure with our code{quick}
@@ -226,4 +236,40 @@ interpolation put the person's radiance in the floor pixel next to it, so the pi
 where it looks like the person. The +-1 px column counts what remains when such edge pixels are
 allowed either side's depth. StereoSGBM, dense, matches every pixel but most of them badly on
 textureless thermal surfaces.
+
+## 5. Every point a tracker receives, per surface
+
+{eval_points.__doc__.split(chr(10) + chr(10), 1)[1]}
+{scoring_doc()}
+
+{eval_points.markdown_report(results["points"])}
+
+{points_before(figures)}
+
+![Points coloured by their 3-D error]({figures}/points_error.png)
+
+Points coloured by their 3-D error over the left image (green within 0.1 m, yellow within
+0.3 m, red beyond), one frame of each sequence and of the recording.
 """
+
+
+POINTS_BEFORE = 'points_before.json'
+
+
+def points_before(figures):
+    """Return the per-surface tables measured before issue 12's changes, when on record."""
+    from st_stereo.tools import eval_points
+    path = pathlib.Path(__file__).resolve().parents[2] / 'docs' / figures / POINTS_BEFORE
+    if not path.is_file():
+        return ''
+    record = json.loads(path.read_text(encoding='utf-8'))
+    return (f'Before the plausible range, the valid-region handling and the confidence '
+            f'(commit {record["commit"]}, the same scoring and frames; '
+            f'`{figures}/{POINTS_BEFORE}`):\n\n'
+            + eval_points.markdown_report(record['report']).replace('#### ', '##### before: '))
+
+
+def scoring_doc():
+    """Return the scoring criteria, from the docstring of ``st_stereo.sim.scoring``."""
+    from st_stereo.sim import scoring
+    return scoring.__doc__.split(chr(10) + chr(10), 1)[1].strip()
