@@ -45,9 +45,14 @@ FLOW_RATE = 2.0 if STRICT else 1.0
 RESUME_S = 2.0 if STRICT else 6.0
 
 
-def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_PERIOD_S):
-    """``check_stream`` with the mode's timing: stamp accuracy and pair skew bound in strict."""
-    if STRICT:
+def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_PERIOD_S, wall_stamps=True):
+    """
+    ``check_stream`` with the mode's timing: stamp accuracy and pair skew bound in strict.
+
+    ``wall_stamps``: the node clock is the system clock (not a simulated ``/clock``), so
+    stamps can be compared with the cameras' acquisition times.
+    """
+    if STRICT and wall_stamps:
         return check_stream(got, sent, min_rate, window, time.time() - time.monotonic(),
                             max_skew_s=max_skew_s + STAMP_TOLERANCE_S)
     return check_stream(got, sent, min_rate, window)
@@ -347,10 +352,12 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         # The steps (+10 s, then -10 s) move stamps and change nothing else: every image sent
         # once, one left and one right per stamp, pairs at the full rate after each step.
         # Short windows: pairs go on (the rate there varies between runs, docs/lepton.md).
-        stream_checks(got, sent, FLOW_RATE, (marks['step'], marks['ffc']))
+        stream_checks(got, sent, FLOW_RATE, (marks['step'], marks['ffc']),
+                      wall_stamps=False)
         # After the step back: the same checks; the rate over this last 5 s window (after an
         # FFC, with the node's timers on a clock that went back) measured 5.8 to 8.8 pairs/s.
-        stream_checks(got, sent, FLOW_RATE, (marks['back'] + 0.5, end))
+        stream_checks(got, sent, FLOW_RATE, (marks['back'] + 0.5, end),
+                      wall_stamps=False)
         stamps = [stamp for stamp, _, _ in got.images['left']]       # in arrival order
         # Gaps over 0.9 s (a resync costs about 0.5 s; the events below all cost more).
         jumps = [b - a for a, b in zip(stamps, stamps[1:]) if abs(b - a) > 0.9e9]
@@ -369,7 +376,8 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         assert rig.cameras['left'].stats().get('ffc', 0) == 1
         # Pairs go on after the FFC (2 s window; measured 5.5 to 8.8 pairs/s: not explained
         # yet, see docs/lepton.md).
-        stream_checks(got, sent, FLOW_RATE, (marks['ffc'] + 2.0, marks['back']))
+        stream_checks(got, sent, FLOW_RATE, (marks['ffc'] + 2.0, marks['back']),
+                      wall_stamps=False)
 
 
 # --- memory -----------------------------------------------------------------------------------

@@ -49,8 +49,14 @@ def resize_area(image, width, height):
 
 
 def contrast_stretch_u8(image, low_percentile=1.0, high_percentile=99.0):
-    """Map an image to 8 bits between two percentiles, for overlays and viewers only."""
+    """
+    Map an image to 8 bits between two percentiles, for overlays and viewers only.
+
+    The percentiles are taken over the non-zero pixels when there are any (0 marks a rectified
+    pixel without data), so a border without data does not wash the image out.
+    """
     image = np.asarray(image, dtype=np.float64)
-    low, high = np.percentile(image, [low_percentile, high_percentile])
+    data = image[image != 0]
+    low, high = np.percentile(data if data.size else image, [low_percentile, high_percentile])
     scale = 255.0 / max(high - low, 1e-9)
     return np.clip((image - low) * scale, 0, 255).astype(np.uint8)

@@ -121,7 +121,7 @@ def point_cloud(header, points, disparity, similarity, intensity, confidence=Non
 
 
 def point_cloud_array(msg):
-    """Read our PointCloud2 back as an (n, 6) float32 array (tests and tools)."""
+    """Read our PointCloud2 back as an (n, len(POINT_FIELDS)) float32 array (tests, tools)."""
     return np.frombuffer(bytes(msg.data), dtype='<f4').reshape(msg.width, -1)
 
 
@@ -130,17 +130,17 @@ def disparity_image(header, shape, x_left, y, disparity, focal, baseline, min_di
     """
     Sparse stereo_msgs/DisparityImage: 32FC1, invalid pixels below ``min_disparity``.
 
-    Values are ``d - (cx_left - cx_right)`` (``disparity_offset``), as stereo_image_proc
-    publishes them, so that ``Z = f T / value`` holds for every consumer; ``min_disparity``
-    and ``max_disparity`` are given in the same terms.
+    Values are ``d - (cx_left - cx_right)`` (``disparity_offset``), as stereo_image_proc's
+    disparity node publishes them (``Z = f T / value``, as its point_cloud node computes);
+    ``min_disparity`` and ``max_disparity`` stay the matcher's unshifted search bounds, as
+    there. Pixels without a match hold ``min_disparity - 1 - max(offset, 0)``, below any value.
 
     ``delta_d`` is the smallest disparity step the matcher resolves (continuous: 1/64 px is
     reported, finer than any realistic sub-pixel error).
     """
     rows, cols = shape
-    min_disparity = float(min_disparity) - disparity_offset
-    max_disparity = float(max_disparity) - disparity_offset
-    image = np.full((rows, cols), min_disparity - 1.0, dtype=np.float32)
+    image = np.full((rows, cols), float(min_disparity) - 1.0 - max(disparity_offset, 0.0),
+                    dtype=np.float32)
     image[y, x_left] = np.asarray(disparity, dtype=np.float64) - disparity_offset
     msg = DisparityImage()
     msg.header = header

@@ -25,12 +25,14 @@ from stereo_msgs.msg import DisparityImage
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 
-INTEGER_ENCODINGS = ('mono8', 'mono16', '8UC1', '16UC1')
-
-
 def data_mask(msg, image):
-    """Pixels with data: in an integer rectified image 0 means none (image_proc, rectifier)."""
-    return image != 0 if msg.encoding in INTEGER_ENCODINGS else None
+    """
+    Pixels with data: in a mono16 rectified image 0 means none (image_proc, the rectifier).
+
+    Raw 14-bit Lepton counts are never 0 (about 8000 at room temperature); in mono8 (AGC,
+    stretched) 0 is a real value, and float images carry no such marker: all pixels count.
+    """
+    return image != 0 if msg.encoding == 'mono16' else None
 
 
 class MatcherNode(Node):
@@ -53,7 +55,7 @@ class MatcherNode(Node):
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
-        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0}
+        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0}
         self.last_error = ''
         self.last_result = None
         self.latencies = []
@@ -99,6 +101,8 @@ class MatcherNode(Node):
              left.shape[1] - 2 * (config.poc_window // 2),
              left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset))
         self.counts['matched'] += 1
+        if not len(result):
+            self.counts['empty_clouds'] += 1
         now = time.time()
         self.frequency.tick(now)
         stamp = header.stamp.sec + header.stamp.nanosec * 1e-9
@@ -118,6 +122,8 @@ class MatcherNode(Node):
             values.update(result.counts)
             values.update({f'time {k} (ms)': round(v, 2) for k, v in
                            result.timings_ms.items()})
+        if result is not None and not len(result) and level == diagnostics.OK:
+            level, summary = diagnostics.WARN, 'the last pair gave no point (see the rejections)'
         if self.last_error:
             level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         status = diagnostics.status(f'{self.get_name()}: ST matching', 'st_stereo',

@@ -3,7 +3,8 @@
 
 Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``,
 ``right/camera_info`` (exact stamp sync); publishes ``left/image_rect``, ``right/image_rect``
-(mono16) and the rectified camera_infos, both in the left optical frame.
+(mono16, 0 where a rectified pixel has no data) and the rectified camera_infos, each in
+its own camera's header (stamp and optical frame).
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
