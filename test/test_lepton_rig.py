@@ -361,9 +361,9 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         stamps = [stamp for stamp, _, _ in got.images['left']]       # in arrival order
         # Gaps over 0.9 s (a resync costs about 0.5 s; the events below all cost more).
         jumps = [b - a for a, b in zip(stamps, stamps[1:]) if abs(b - a) > 0.9e9]
-        # The step forward and the step back show in the stamps (other gaps: the unplugged
-        # camera, the FFCs, resyncs).
-        assert any(10.0e9 < jump < 10.3e9 for jump in jumps), jumps
+        # The step forward and the step back show in the stamps, plus at most 1.5 s of a gap
+        # that may coincide with them (a resync); other gaps: the unplugged camera, the FFCs.
+        assert any(10.0e9 < jump < 11.5e9 for jump in jumps), jumps
         assert any(-10.0e9 < jump < -8.5e9 for jump in jumps), jumps
         # The pairs just before the automatic FFC are flagged (the camera said "imminent").
         flagged = [array for array in got.pair_info if any(
