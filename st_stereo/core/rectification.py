@@ -41,6 +41,9 @@ class StereoRectifier:
         self.right = right_calibration
         self.left_maps = rectification_maps(left_calibration)
         self.right_maps = rectification_maps(right_calibration)
+        # Fixed by the calibration: computed once, not per frame.
+        self._valid = (valid_region(self.left_maps, self.shape),
+                       valid_region(self.right_maps, self.shape))
         self.model = StereoModel.from_projection_matrices(left_calibration.projection,
                                                           right_calibration.projection)
 
@@ -57,16 +60,15 @@ class StereoRectifier:
         does) and the matcher must not find features there (``StereoMatcher.match``'s
         ``left_valid`` / ``right_valid``).
         """
-        return tuple(valid_region(maps, self.shape) for maps in (self.left_maps, self.right_maps))
+        return self._valid
 
     def valid_keywords(self):
         """``valid_masks`` as the keywords of ``StereoMatcher.match``."""
         left, right = self.valid_masks()
         return {'left_valid': left, 'right_valid': right}
 
-    def rectify_one(self, image, maps, name):
-        """Rectify one image with bilinear interpolation; pixels without data are 0."""
-        valid = valid_region(maps, self.shape)
+    def rectify_one(self, image, maps, valid, name):
+        """Rectify one image with bilinear interpolation; pixels outside ``valid`` are 0."""
         image = np.asarray(image)
         if image.shape != self.shape:
             raise ValueError(f'{name} image is {image.shape[1]}x{image.shape[0]}, the '
@@ -78,5 +80,5 @@ class StereoRectifier:
 
     def rectify(self, left, right):
         """Rectify a raw pair; returns float32 images in raw-count units."""
-        return (self.rectify_one(left, self.left_maps, 'left'),
-                self.rectify_one(right, self.right_maps, 'right'))
+        return (self.rectify_one(left, self.left_maps, self._valid[0], 'left'),
+                self.rectify_one(right, self.right_maps, self._valid[1], 'right'))

@@ -364,14 +364,15 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
     volume = lades_similarity_volume(left_moments, right_moments, disparities,
                                      config.similarity_window)
     candidate_level = config.candidate_ratio * config.gamma
-    candidates = right_moments > candidate_level
+    # Right columns whose sub-pixel window fits: where candidates (and rivals) may lie.
+    inside = np.ones((rows, cols), dtype=bool)
+    if right_margin:
+        inside[:, :right_margin] = False
+        inside[:, cols - right_margin:] = False
+    candidates = (right_moments > candidate_level) & inside
     if right_valid is not None:
         candidates &= right_valid
-    right_valid = candidates
-    if right_margin:
-        right_valid[:, :right_margin] = False
-        right_valid[:, cols - right_margin:] = False
-    valid = shifted_stack(right_valid, disparities) & admissible
+    valid = shifted_stack(candidates, disparities) & admissible
     best, best_value = _best_candidates(volume, valid)
 
     y, x_left = np.nonzero(left_features)
@@ -386,10 +387,6 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
         return matches.subset(keep)
 
     matches = apply('similarity', matches.similarity >= config.min_similarity)
-    inside = np.ones((rows, cols), dtype=bool)
-    if right_margin:
-        inside[:, :right_margin] = False
-        inside[:, cols - right_margin:] = False
     searchable = shifted_stack(inside, disparities) & admissible
     runner_up = runner_up_similarity(volume, valid, searchable, best, matches.y, matches.x_left)
     matches.distinctiveness = matches.similarity - runner_up

@@ -44,6 +44,24 @@ def load_textures(blur_texels=1.0):
                                ('car', 'moving_car.png'))}
 
 
+SIDE_AXES = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+END_AXES = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def room_shell(low, high, floor, wall, ceiling, wall_seeds):
+    """
+    Build a closed room: ``floor`` and ``ceiling`` materials, walls ``wall(axes, seed)``.
+
+    ``wall_seeds`` gives the seeds of the x-, x+, y-, y+ walls; labels follow ``LABELS``.
+    """
+    seeds = dict(zip(('x-', 'x+', 'y-', 'y+'), wall_seeds))
+    walls = {face: wall(SIDE_AXES if face.startswith('x') else END_AXES, seed)
+             for face, seed in seeds.items()}
+    return RoomShell(low=low, high=high,
+                     materials={**walls, 'floor': floor, 'ceiling': ceiling},
+                     labels={'x-': 1, 'x+': 1, 'y-': 1, 'y+': 1, 'floor': 0, 'ceiling': 2})
+
+
 def office_room(textures, chair=(-0.6, 3.3)):
     """Build the static office: shell faces and furniture (labels in ``LABELS``)."""
     floor = ThermalMaterial(base=AMBIENT - 0.5, gradient=(0.0, 0.15, 0.0),
@@ -54,14 +72,8 @@ def office_room(textures, chair=(-0.6, 3.3)):
         return ThermalMaterial(base=AMBIENT, gradient=(0.0, 0.0, 0.4),
                                texture=textures['wall'], texture_axes=axes, texel_m=0.03,
                                texture_kelvin=0.3, ambient=AMBIENT, seed=seed)
-    side_axes = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    end_axes = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-    shell = RoomShell(
-        low=(-2.5, -0.5, 0.0), high=(2.5, 6.5, 3.0),
-        materials={'x-': wall(side_axes, 12), 'x+': wall(side_axes, 13),
-                   'y-': wall(end_axes, 14), 'y+': wall(end_axes, 15), 'floor': floor,
-                   'ceiling': ThermalMaterial(base=AMBIENT + 1.5, ambient=AMBIENT)},
-        labels={'x-': 1, 'x+': 1, 'y-': 1, 'y+': 1, 'floor': 0, 'ceiling': 2})
+    shell = room_shell((-2.5, -0.5, 0.0), (2.5, 6.5, 3.0), floor, wall,
+                       ThermalMaterial(base=AMBIENT + 1.5, ambient=AMBIENT), (12, 13, 14, 15))
     fins = np.tile(np.sin(np.linspace(0, 2 * np.pi, 8, endpoint=False)), (8, 1))
     cx, cy = chair
     objects = [
@@ -71,11 +83,11 @@ def office_room(textures, chair=(-0.6, 3.3)):
             ThermalMaterial(base=31.0, gradient=(0.0, 0.0, 6.0), origin=(0, 0, 0.78),
                             noise_kelvin=0.3, ambient=AMBIENT, seed=22)),
         Box('radiator', 5, (-1.6, 6.38, 0.15), (-0.3, 6.5, 0.75),
-            ThermalMaterial(base=41.0, texture=fins, texture_axes=end_axes, texel_m=0.012,
+            ThermalMaterial(base=41.0, texture=fins, texture_axes=END_AXES, texel_m=0.012,
                             texture_kelvin=2.5, ambient=AMBIENT, seed=23)),
         Box('panel', 6, (-2.5, 3.4, 0.9), (-2.42, 4.6, 1.8),
             ThermalMaterial(base=AMBIENT + 3.0, texture=textures['panel'],
-                            texture_axes=side_axes, texel_m=0.015, texture_kelvin=2.0,
+                            texture_axes=SIDE_AXES, texel_m=0.015, texture_kelvin=2.0,
                             origin=(-2.5, 3.6, 1.0), ambient=AMBIENT, seed=24)),
         Box('cabinet', 7, (1.9, 1.6, 0.0), (2.5, 2.6, 1.9),
             ThermalMaterial(base=AMBIENT - 0.3, gradient=(0.0, 0.0, 0.3), noise_kelvin=0.1,
@@ -105,14 +117,8 @@ def meeting_room(textures):
         return ThermalMaterial(base=ambient + 0.5, gradient=(0.0, 0.0, 0.6),
                                texture=textures['floor'], texture_axes=axes, texel_m=0.04,
                                texture_kelvin=0.4, ambient=ambient, seed=seed)
-    side_axes = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    end_axes = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-    shell = RoomShell(
-        low=(-3.0, -0.5, 0.0), high=(3.0, 5.5, 3.0),
-        materials={'x-': wall(side_axes, 32), 'x+': wall(side_axes, 33),
-                   'y-': wall(end_axes, 34), 'y+': wall(end_axes, 35), 'floor': floor,
-                   'ceiling': ThermalMaterial(base=ambient + 2.0, ambient=ambient)},
-        labels={'x-': 1, 'x+': 1, 'y-': 1, 'y+': 1, 'floor': 0, 'ceiling': 2})
+    shell = room_shell((-3.0, -0.5, 0.0), (3.0, 5.5, 3.0), floor, wall,
+                       ThermalMaterial(base=ambient + 2.0, ambient=ambient), (32, 33, 34, 35))
     grille = np.tile(np.sin(np.linspace(0, 2 * np.pi, 6, endpoint=False))[:, None], (1, 6))
     objects = [
         Box('table', 9, (-0.9, 3.6, 0.0), (0.9, 4.4, 0.76),
@@ -121,7 +127,7 @@ def meeting_room(textures):
             ThermalMaterial(base=ambient - 0.2, gradient=(0.0, 0.0, 0.5), noise_kelvin=0.25,
                             ambient=ambient, seed=42)),
         Box('heater', 11, (-2.9, 4.6, 0.0), (-2.5, 5.0, 0.5),
-            ThermalMaterial(base=45.0, texture=grille, texture_axes=side_axes, texel_m=0.02,
+            ThermalMaterial(base=45.0, texture=grille, texture_axes=SIDE_AXES, texel_m=0.02,
                             texture_kelvin=3.0, ambient=ambient, seed=43)),
     ]
     return shell, objects
