@@ -9,6 +9,12 @@ One place for ``bag_play``, the driver's ``source:=bag`` and ``st-stereo calibra
   deadline 0 in ``metadata.yaml``, infinite in the MCAP channel), so rosbags matched nothing
   and yielded no message at all. rosbag2 itself matches by topic and type; so does this.
   (Worth offering upstream: the QoS text is not part of a connection's identity.)
+- ``open_bag``, sqlite3 bags of Iron and later: rosbag2 stores a type whose ``.msg`` it could
+  not find (e.g. a service event type) with encoding ``''`` and no text in the
+  ``message_definitions`` table ("Message definition will be left empty in bag"). rosbags
+  (0.11) maps only ``ros2msg``/``ros2idl`` there and fails the whole bag with ``KeyError: ''``
+  (its MCAP reader accepts ``''``). ``_Sqlite3Reader`` hides those rows from that one query:
+  they hold no definition, so the type reads as "no definition", as in MCAP.
 - ``normalized_msgtype``: ``pkg/msg/Name``, also for the old ``pkg/Name`` spelling.
 - ``open_bag``: a damaged or foreign bag is one ``BagError`` line naming the file, the line
   where the parser stopped (when it says) and what is wrong, never a traceback.
@@ -24,13 +30,12 @@ class BagError(ValueError):
 
 def open_bag(path):
     """Open a rosbag2 directory (or storage file) with rosbags; BagError when it cannot."""
-    from rosbags.rosbag2 import Reader
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f'{path}: no such bag')
     metadata = path / 'metadata.yaml' if path.is_dir() else path
     try:
-        reader = Reader(path)
+        reader = _reader_class()(path)
         reader.open()
     except Exception as error:      # noqa: B902 - rosbags and its YAML parser raise many kinds
         raise BagError(f'{metadata}: {_one_line(error)}') from None
@@ -41,6 +46,43 @@ def open_bag(path):
             reader.close()
             raise BagError(f'{metadata}: topic {connection.topic}: {error}') from None
     return reader
+
+
+_DEFINITIONS_QUERY = 'FROM message_definitions'
+
+
+def _skip_empty_definitions(cursor, statement, bindings):
+    # Execution tracer of the connection rosbags' Sqlite3Reader._open makes: on its query of
+    # message_definitions only, drop the rows rosbag2 left without a definition.
+    if _DEFINITIONS_QUERY in statement:
+        cursor.row_trace = lambda _, row: row if row[1] else None
+    return True
+
+
+def _reader_class():
+    """Return rosbags' Reader with the sqlite3 storage reader of the module docstring."""
+    import apsw
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.reader import DirectoryReader
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+    class _Sqlite3Reader(Sqlite3Reader):
+        def _open(self):
+            def hook(connection):
+                connection.exec_trace = _skip_empty_definitions
+            apsw.connection_hooks.append(hook)
+            try:
+                super()._open()
+            finally:
+                apsw.connection_hooks.remove(hook)
+
+    class _DirectoryReader(DirectoryReader):
+        STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS, 'sqlite3': _Sqlite3Reader}
+
+    class _Reader(Reader):
+        STORAGE_PLUGINS = {**Reader.STORAGE_PLUGINS, 'dir': _DirectoryReader,
+                           '.db3': _Sqlite3Reader}
+    return _Reader
 
 
 def _one_line(error):
