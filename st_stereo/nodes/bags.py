@@ -49,10 +49,17 @@ def qos_from_recorded(profiles):
     """
     Return the rclpy QoSProfile of the offered QoS recorded in a bag.
 
-    Reliable with depth 10 when nothing was recorded.
+    Reliable with depth 10 when nothing was recorded, and, as ``ros2 bag play`` does
+    (rosbag2_storage qos.cpp, ``adapt_offer_to_recorded_offers``), when the recorded
+    publishers did not all offer the same reliability, durability, deadline and liveliness.
     """
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-    if profiles:
+
+    def compatibility(profile):
+        return tuple(getattr(getattr(profile, key, None), 'value', getattr(profile, key, None))
+                     for key in ('reliability', 'durability', 'deadline', 'liveliness',
+                                 'liveliness_lease_duration'))
+    if profiles and len({compatibility(p) for p in profiles}) == 1:
         recorded = profiles[0]
         reliability = getattr(recorded.reliability, 'value', recorded.reliability)
         durability = getattr(recorded.durability, 'value', recorded.durability)
