@@ -19,6 +19,7 @@ def test_replay_reproduces_the_live_reader(tmp_path):
     frames, replayed, mode = decode_capture(path)
     assert mode == 'footer'
     assert replayed.pop('bytes_skipped_realigning') == 0   # recorded reads keep alignment
+    assert replayed.pop('capture_bytes_damaged') == 0
     assert replayed == live
     assert len(frames) == live['unique_frames'] and live['crc_errors'] > 0
     stamps = [f.stamp for f in frames]
@@ -59,9 +60,11 @@ def test_decode_command_writes_frames_and_counters(tmp_path, capsys):
 
 
 @pytest.mark.parametrize('content, message', [
-    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}R\x00\x00', 'truncated read record'),
+    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}R\x00\x00', 'no intact read record .truncated read'),
     (MAGIC + b'\x01\x00', 'truncated header'),
-    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}Z', 'unknown record type'),
+    (MAGIC + b'\x01\x00\x02\x00\x00\x00{}Z', 'no intact read record .unknown record type'),
+    (MAGIC + b'\x01\x00\x02\x00\x00\x00[]', 'header: expected a JSON object, got list'),
+    (MAGIC + b'\x01\x00\x0f\x00\x00\x00{"spi_hz": "x"}', 'header field spi_hz: expected'),
     (b'\x00' * 10, 'shorter than one packet'),
     (bytes(range(256)) * 200, 'no valid Lepton packet'),
 ])
@@ -89,18 +92,11 @@ def test_decode_command_reports_bad_files(tmp_path, capsys):
     assert 'no valid Lepton packet' in capsys.readouterr().err
 
 
-@pytest.mark.parametrize('rates, share', [
-    ({'crc': 0.01, 'missing': 0.01, 'misalign': 0.01, 'repeat': 0.01, 'discard_burst': 0.01},
-     0.95),
-    ({'crc': 0.04, 'missing': 0.04, 'misalign': 0.04, 'repeat': 0.04, 'discard_burst': 0.04},
-     0.90)])
-def test_plain_bytes_with_lost_and_extra_bytes_are_realigned(tmp_path, rates, share):
-    # Concatenated SPI reads as other tools record them, with faults including misaligned
-    # bytes: the decoder finds packet boundaries again (a CRC-valid packet at any offset) and
-    # recovers the frames the live reader got from the same bytes; none corrupt, none twice.
+def plain_byte_capture(path, rates, seed, seconds=60.0):
+    """Concatenated SPI reads of a live reader (as other tools record them); the camera."""
     from st_stereo.lepton.capture import RecordingTransport
-    camera = LeptonSimulator(SyntheticSceneSource(3), telemetry='off',
-                             faults=FaultPlan(rates), seed=3, phase_s=0.011)
+    camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry='off',
+                             faults=FaultPlan(rates), seed=seed, phase_s=0.011)
     chunks = []
 
     class Plain:
@@ -112,18 +108,62 @@ def test_plain_bytes_with_lost_and_extra_bytes_are_realigned(tmp_path, rates, sh
 
     reader = LeptonReader(RecordingTransport(camera, Plain()), telemetry='off',
                           frame_gap_wait=False)
-    live = set()
-    while camera.now() < 60.0:
-        frame = reader.read_frame(timeout_s=1.0)
-        if frame is not None:
-            live.add(frame.pixels.tobytes())
-    path = tmp_path / 'plain.bin'
+    while camera.now() < seconds:
+        reader.read_frame(timeout_s=1.0)
     path.write_bytes(b''.join(chunks))
-    frames, counters, _ = decode_capture(path, telemetry='off')
-    decoded = [frame.pixels.tobytes() for frame in frames]
+    return camera
+
+
+MIXED_FAULTS = ('crc', 'missing', 'misalign', 'repeat', 'discard_burst')
+
+
+@pytest.mark.parametrize('total_rate', [0.05, 0.20])
+def test_plain_bytes_with_lost_and_extra_bytes_are_realigned(tmp_path, capsys, total_rate):
+    # Faults including misaligned bytes (1-163 extra bytes inside a packet): the decoder finds
+    # packet boundaries again (a CRC-valid packet at any offset) and recovers every frame that
+    # kept one intact copy in the bytes (the simulator's ground truth), none corrupt, none
+    # twice. Measured: 100 % of them (the issue asks >= 95 %).
+    camera = plain_byte_capture(tmp_path / 'plain.bin',
+                                {kind: total_rate / len(MIXED_FAULTS) for kind in MIXED_FAULTS},
+                                seed=3)
+    out = tmp_path / 'frames.npz'
+    assert main(['lepton', 'decode', str(tmp_path / 'plain.bin'), '--telemetry', 'off',
+                 '--out', str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    data = np.load(out)
+    decoded = [frame.tobytes() for frame in data['frames']]
     sent = {pixels.tobytes() for pixels in camera.intended.values()}
-    assert camera.delivered['misalign'] > 5
+    intact = {camera.intended[unique].tobytes() for unique, copies in camera.intact.items()
+              if copies > 0}
+    assert camera.delivered['misalign'] > 5 and len(intact) < len(sent)
     assert all(pixels in sent for pixels in decoded)                   # none corrupt
     assert len(set(decoded)) == len(decoded)                           # none twice
-    assert len(live & set(decoded)) >= share * len(live)
-    assert counters['bytes_skipped_realigning'] > 0
+    assert len(intact & set(decoded)) >= 0.95 * len(intact)
+    assert printed['counters']['bytes_skipped_realigning'] > 0
+
+
+def test_captures_with_lost_or_extra_bytes_lose_only_the_damaged_records(tmp_path):
+    # The project's own format with bytes lost or inserted at 12 places (as a bad copy or a
+    # flaky disk does): parsing resumes at the next intact record, every byte passed over is
+    # counted, and the frames of intact records still decode (none corrupt, none twice).
+    import random
+    path = tmp_path / 'c.stcap'
+    simulate_capture(path, 12.0, 'footer', None, seed=5)
+    intact_frames, _, _ = decode_capture(path)
+    blob = bytearray(path.read_bytes())
+    rng = random.Random(5)
+    for place in sorted(rng.sample(range(2000, len(blob) - 2000), 12), reverse=True):
+        if rng.random() < 0.5:
+            del blob[place:place + rng.randint(1, 200)]
+        else:
+            blob[place:place] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 200)))
+    damaged = tmp_path / 'damaged.stcap'
+    damaged.write_bytes(bytes(blob))
+    frames, counters, _ = decode_capture(damaged)
+    truth = {frame.pixels.tobytes() for frame in intact_frames}
+    decoded = [frame.pixels.tobytes() for frame in frames]
+    assert counters['capture_bytes_damaged'] > 0
+    assert all(pixels in truth for pixels in decoded)
+    assert len(set(decoded)) == len(decoded)
+    assert len(decoded) >= len(truth) - 2 * 12
+    assert [f.stamp for f in frames] == sorted(f.stamp for f in frames)

@@ -9,11 +9,13 @@ synthesised from the byte position at the given SPI clock.
 """
 
 import json
+import math
 import os
 import struct
 
 import numpy as np
 
+from st_stereo.lepton.assembler import TELEMETRY_MODES
 from st_stereo.lepton.packets import (is_discard, packet_crc, packet_number,
                                       RAW14_PACKET_BYTES, RGB888_PACKET_BYTES)
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
@@ -85,14 +87,17 @@ class RecordingTransport:
 
 def read_capture(path):
     """
-    Load a capture: (header dict, byte stream, per-byte-offset read times).
+    Load a capture: (header dict, byte stream, per-byte-offset read times, damaged bytes).
 
     A file without the magic is taken as plain concatenated SPI bytes (header {}, no times).
+    Records damaged by lost or extra bytes are passed over: parsing resumes at the next offset
+    where two plausible records follow each other (or one ends the file), and a truncated last
+    record is dropped; every byte passed over is counted in ``damaged bytes``.
 
     Raises
     ------
     CaptureError
-        Missing file, truncated record, unknown record type, bad header.
+        Missing file, bad header (see ``header_settings``), or no intact record at all.
 
     """
     path = os.fspath(path)
@@ -101,7 +106,7 @@ def read_capture(path):
     with open(path, 'rb') as stream:
         blob = stream.read()
     if not blob.startswith(MAGIC):
-        return {}, blob, None
+        return {}, blob, None, 0
     offset = len(MAGIC)
     if len(blob) < offset + 6:
         raise CaptureError(f'{path}: truncated header')
@@ -111,33 +116,98 @@ def read_capture(path):
     offset += 6
     try:
         header = json.loads(blob[offset:offset + length].decode('utf-8'))
-    except (UnicodeDecodeError, json.JSONDecodeError):
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         raise CaptureError(f'{path}: unreadable capture header') from None
+    if not isinstance(header, dict):
+        raise CaptureError(f'{path}: capture header: expected a JSON object, got '
+                           f'{type(header).__name__}')
+    header_settings(path, header)
     offset += length
     chunks, starts, offsets = [], [], []
-    total = 0
+    total = damaged = 0
+    last_stamp = None
+    first_problem = None
     while offset < len(blob):
-        kind = blob[offset:offset + 1]
-        if kind == b'R':
-            if offset + READ_RECORD.size > len(blob):
-                raise CaptureError(f'{path}: truncated read record at byte {offset}')
-            _, stamp, size = READ_RECORD.unpack_from(blob, offset)
-            offset += READ_RECORD.size
-            if offset + size > len(blob):
-                raise CaptureError(f'{path}: truncated read record at byte {offset} '
-                                   f'({size} bytes announced, {len(blob) - offset} present)')
-            chunks.append(blob[offset:offset + size])
-            starts.append(stamp)
-            offsets.append(total)
-            total += size
-            offset += size
-        elif kind == b'I':
-            if offset + IDLE_RECORD.size > len(blob):
-                raise CaptureError(f'{path}: truncated idle record at byte {offset}')
-            offset += IDLE_RECORD.size
-        else:
-            raise CaptureError(f'{path}: unknown record type {kind!r} at byte {offset}')
-    return header, b''.join(chunks), (np.array(offsets), np.array(starts))
+        record = _plausible_record(blob, offset, last_stamp)
+        if record is not None and (record[2] == len(blob) or _plausible_record(
+                blob, record[2], record[1]) is not None):
+            kind, last_stamp, end = record
+            if kind == b'R':
+                chunks.append(blob[offset + READ_RECORD.size:end])
+                starts.append(last_stamp)
+                offsets.append(total)
+                total += end - offset - READ_RECORD.size
+            offset = end
+            continue
+        if first_problem is None:
+            first_problem = _record_problem(blob, offset)
+        resume = _next_record(blob, offset + 1, last_stamp)
+        damaged += resume - offset
+        offset = resume
+    if not chunks:
+        raise CaptureError(f'{path}: no intact read record'
+                           + (f' ({first_problem})' if first_problem else ''))
+    return header, b''.join(chunks), (np.array(offsets), np.array(starts)), damaged
+
+
+MAX_RECORD_BYTES = 1 << 24      # far above any SPI read (the reader reads a frame at most)
+MAX_IDLE_S = 3600.0
+
+
+def _plausible_record(blob, offset, last_stamp):
+    """Return (kind, stamp, end offset) of a well-formed record at ``offset``, else None."""
+    kind = blob[offset:offset + 1]
+    if kind == b'R':
+        if offset + READ_RECORD.size > len(blob):
+            return None
+        _, stamp, size = READ_RECORD.unpack_from(blob, offset)
+        end = offset + READ_RECORD.size + size
+        if not 0 < size <= MAX_RECORD_BYTES or end > len(blob):
+            return None
+    elif kind == b'I':
+        if offset + IDLE_RECORD.size > len(blob):
+            return None
+        _, stamp, seconds = IDLE_RECORD.unpack_from(blob, offset)
+        end = offset + IDLE_RECORD.size
+        if not 0.0 <= seconds <= MAX_IDLE_S:        # also false for NaN
+            return None
+    else:
+        return None
+    if not math.isfinite(stamp) or last_stamp is not None and \
+            not last_stamp - 1.0 <= stamp <= last_stamp + MAX_IDLE_S:
+        return None
+    return kind, stamp, end
+
+
+def _record_problem(blob, offset):
+    kind = blob[offset:offset + 1]
+    if kind not in (b'R', b'I'):
+        return f'unknown record type {kind!r} at byte {offset}'
+    record = READ_RECORD if kind == b'R' else IDLE_RECORD
+    if offset + record.size > len(blob):
+        return f'truncated {"read" if kind == b"R" else "idle"} record at byte {offset}'
+    if kind == b'R':
+        size = READ_RECORD.unpack_from(blob, offset)[2]
+        present = len(blob) - offset - READ_RECORD.size
+        if size > present:
+            return (f'truncated read record at byte {offset} ({size} bytes announced, '
+                    f'{present} present)')
+    return f'implausible record at byte {offset}'
+
+
+def _next_record(blob, offset, last_stamp):
+    """Offset of the next place where plausible records chain (or the end of the file)."""
+    while offset < len(blob):
+        hits = [i for i in (blob.find(b'R', offset), blob.find(b'I', offset)) if i >= 0]
+        if not hits:
+            return len(blob)
+        offset = min(hits)
+        record = _plausible_record(blob, offset, last_stamp)
+        if record is not None and (record[2] == len(blob) or _plausible_record(
+                blob, record[2], record[1]) is not None):
+            return offset
+        offset += 1
+    return len(blob)
 
 
 def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
@@ -156,22 +226,30 @@ def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
     return best_offset, best
 
 
-def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
+def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES, block=1 << 16):
     """
     Byte offset >= ``position`` of the next video packet with a valid CRC (any alignment).
 
     Returns ``len(data)`` when there is none. This is how a decoder finds packet boundaries
-    again after lost or extra bytes, as a live reader does after a resync.
+    again after lost or extra bytes, as a live reader does after a resync. An all-zero packet
+    is not one: its CRC is trivially valid (CRC-16/XMODEM of zeros is 0), and a discard whose
+    payload is zeros followed by a packet 0 (ID 0x0000) holds one at 2 bytes before the real
+    packet 0. Candidates (packet number < 63) are found ``block`` bytes at a time with numpy;
+    only they are CRC-checked.
     """
     last = len(data) - packet_bytes
     view = memoryview(data)
-    for start in range(position, last + 1):
-        packet_id = (data[start] << 8) | data[start + 1]
-        if is_discard(packet_id) or packet_number(packet_id) >= 63:
-            continue
-        if packet_crc(view[start:start + packet_bytes]) == \
-                ((data[start + 2] << 8) | data[start + 3]):
-            return start
+    start = position
+    while start <= last:
+        stop = min(start + block, last + 1)
+        head = np.frombuffer(view[start:stop + 1], dtype=np.uint8)
+        candidates = np.flatnonzero(((head[:-1] & 0x0F) == 0) & (head[1:] < 63))
+        for offset in (candidates + start).tolist():
+            packet = view[offset:offset + packet_bytes]
+            if packet_crc(packet) == ((data[offset + 2] << 8) | data[offset + 3]) and \
+                    any(packet[1:]):
+                return offset
+        start = stop
     return len(data)
 
 
@@ -224,6 +302,7 @@ class ReplayTransport:
         self.seconds_per_byte = 8.0 / spi_hz
         self._clock = 0.0
         self.skipped_bytes = 0           # bytes passed over to find packet boundaries again
+        self._search_from = 0            # the next search starts past the last packet found
 
     def now(self):
         """Time of the byte about to be read (recorded, or synthesised)."""
@@ -275,15 +354,45 @@ class ReplayTransport:
         self._clock += seconds
         # Plain bytes: lost or extra bytes shift every packet after them: resume at the next
         # packet with a valid CRC, whatever its byte offset (every byte skipped counted).
-        found = next_valid_packet(self.data, self.position, self.packet_bytes)
+        # The search may start a little before bytes already read (see ``unread``), never at
+        # or before the packet the last search found: every search moves on.
+        start = max(self.position, self._search_from)
+        found = next_valid_packet(self.data, start, self.packet_bytes)
         if found >= len(self.data):
-            found = self.position          # nothing valid left: the reader reaches the end
-        self.skipped_bytes += found - self.position
+            found = start                  # nothing valid left: the reader reaches the end
+        self.skipped_bytes += found - start
         self.position = found
+        self._search_from = found + 1
 
     def wait(self, seconds):
         """As ``idle``."""
         self.idle(seconds)
+
+
+def header_settings(path, header):
+    """
+    Check a capture header's fields: {'telemetry': mode or None, 'spi_hz': Hz}.
+
+    CaptureError names the file, the field, what was expected and what was found; RGB888 and
+    packet sizes other than Raw14's are refused.
+    """
+    packet_bytes = header.get('packet_bytes', RAW14_PACKET_BYTES)
+    if packet_bytes == RGB888_PACKET_BYTES or header.get('format') == 'rgb888':
+        raise CaptureError(f'{path}: RGB888 video (244-byte packets) is not supported: set the '
+                           f'camera to Raw14')
+    if packet_bytes != RAW14_PACKET_BYTES:
+        raise CaptureError(f'{path}: header field packet_bytes: only Raw14 '
+                           f'({RAW14_PACKET_BYTES}) is supported, got {packet_bytes!r}')
+    telemetry = header.get('telemetry')
+    if telemetry is not None and telemetry not in TELEMETRY_MODES:
+        raise CaptureError(f'{path}: header field telemetry: expected one of '
+                           f'{", ".join(TELEMETRY_MODES)}, got {telemetry!r}')
+    spi_hz = header.get('spi_hz', 20e6)
+    if isinstance(spi_hz, bool) or not isinstance(spi_hz, (int, float)) or \
+            not 1e5 <= spi_hz <= 1e8:
+        raise CaptureError(f'{path}: header field spi_hz: expected a clock of 0.1 to 100 MHz, '
+                           f'got {spi_hz!r}')
+    return {'telemetry': telemetry, 'spi_hz': float(spi_hz)}
 
 
 def decode_capture(path, telemetry=None, spi_hz=None):
@@ -298,23 +407,16 @@ def decode_capture(path, telemetry=None, spi_hz=None):
         The mode used (given, from the header, or detected).
 
     """
-    header, data, times = read_capture(path)
-    packet_bytes = header.get('packet_bytes', RAW14_PACKET_BYTES)
-    if packet_bytes == RGB888_PACKET_BYTES or header.get('format') == 'rgb888':
-        raise CaptureError(f'{path}: RGB888 video (244-byte packets) is not supported: set the '
-                           f'camera to Raw14')
-    if packet_bytes != RAW14_PACKET_BYTES:
-        raise CaptureError(f'{path}: packet size {packet_bytes} bytes; only Raw14 '
-                           f'({RAW14_PACKET_BYTES}) is supported')
-    if len(data) < packet_bytes:
+    header, data, times, damaged = read_capture(path)
+    settings = header_settings(path, header)
+    if len(data) < RAW14_PACKET_BYTES:
         raise CaptureError(f'{path}: {len(data)} bytes: shorter than one packet')
     try:
-        mode = telemetry or header.get('telemetry') or detect_telemetry_mode(data)
+        mode = telemetry or settings['telemetry'] or detect_telemetry_mode(data)
     except CaptureError as error:
         raise CaptureError(f'{path}: {error}') from None
     start = 0 if times is not None else find_alignment(data)[0]
-    transport = ReplayTransport(data, times, spi_hz or header.get('spi_hz', 20e6),
-                                start_offset=start)
+    transport = ReplayTransport(data, times, spi_hz or settings['spi_hz'], start_offset=start)
     reader = LeptonReader(transport, telemetry=mode, frame_gap_wait=False, no_video_s=1e9)
     frames = []
     try:
@@ -327,6 +429,7 @@ def decode_capture(path, telemetry=None, spi_hz=None):
         pass
     counters = reader.counters.as_dict()
     counters['bytes_skipped_realigning'] = transport.skipped_bytes
+    counters['capture_bytes_damaged'] = damaged
     return frames, counters, mode
 
 

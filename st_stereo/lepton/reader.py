@@ -252,10 +252,12 @@ class LeptonReader:
                 else:
                     self._need_resync = True
                     unread = getattr(transport, 'unread', None)
-                    if unread is not None and consumed < len(ids):
-                        # A recording can take back what the frame did not use: the search
-                        # for packet boundaries starts there (a live bus cannot).
-                        unread(len(chunk) - consumed * size)
+                    if unread is not None:
+                        # A recording can take back bytes (a live bus cannot): the search for
+                        # packet boundaries starts one byte into the packet before the one that
+                        # failed, because a frame's first packet may begin inside a misaligned
+                        # packet taken for a discard (discards carry no CRC).
+                        unread(len(chunk) - consumed * size + 2 * size - 1)
                         continue
                 if consumed < len(ids):
                     self._leftover = chunk[consumed * size:]

@@ -10,7 +10,9 @@ sync, and the camera then sends garbage until the host idles /CS for more than 1
 
 Faults (``FaultPlan``) are drawn per core frame with a seeded generator; the ledger
 ``delivered`` counts only faults that reached the host (a fault in a frame the reader never
-clocks out does not count), with the time each was delivered.
+clocks out does not count), with the time each was delivered. ``intact`` counts, per unique
+frame, the copies clocked out whole with every packet intact: the ground truth of what a decoder of
+the recorded bytes could recover.
 """
 
 import collections
@@ -26,6 +28,9 @@ from st_stereo.lepton.telemetry import encode_telemetry_row_a
 RESYNC_MIN_IDLE_S = 0.185
 FAULT_KINDS = ('discard_burst', 'crc', 'id', 'payload', 'missing', 'repeat', 'reorder',
                'misalign', 'stall', 'stuck', 'ffc_freeze')
+# Faults that damage or lose a packet of the frame (the others leave every packet intact: a
+# repeated or reordered packet, discards inside the frame, a frozen image).
+DAMAGING_FAULTS = ('crc', 'id', 'payload', 'missing', 'misalign', 'stall', 'stuck')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,6 +171,10 @@ class LeptonSimulator:
         self.delivered = collections.Counter()
         self.delivery_log = []       # (time, kind) of every fault that reached the host
         self.intended = {}           # unique index -> pixels the camera meant to send
+        self.intact = collections.Counter()   # unique index -> copies sent whole, fault-free
+        self._frame_unique = None    # unique index of the frame being clocked out
+        self._frame_clean = False    # no transmission fault drawn for it
+        self._done_unique = None     # a clean frame whose last packet is still being clocked
         self._keep_intended = keep_intended
         self._pending = b''
         self._frame_packets = None   # packets of the frame being clocked out
@@ -197,6 +206,7 @@ class LeptonSimulator:
         if seconds >= RESYNC_MIN_IDLE_S:
             self._sync_lost = False
             self._pending = b''
+            self._done_unique = None       # a last packet cut short: not sent whole
             self._frame_packets = None
             self._next_core = max(self._next_core, self._core_index_ready(self.time) + 1)
 
@@ -214,6 +224,9 @@ class LeptonSimulator:
                 if not piece:
                     packet = self._next_packet()
                     piece, self._pending = packet[:remaining], packet[remaining:]
+            if self._done_unique is not None and not self._pending:
+                self.intact[self._done_unique] += 1
+                self._done_unique = None
             parts.append(piece)
             remaining -= len(piece)
             self.time += len(piece) * seconds_per_byte
@@ -241,7 +254,7 @@ class LeptonSimulator:
             start = self._position * size
             self._position += count
             if self._position >= len(self._frame_packets):
-                self._frame_packets = None
+                self._frame_done()
             return self._frame_blob[start:start + count * size]
         ready_at = self._core_time(self._next_core)
         if self.time >= ready_at:
@@ -316,8 +329,14 @@ class LeptonSimulator:
         packet = self._frame_packets[position]
         self._position += 1
         if self._position >= len(self._frame_packets):
-            self._frame_packets = None
+            self._frame_done()
         return packet
+
+    def _frame_done(self):
+        # Counted in ``intact`` once the last byte is clocked out (``read``).
+        self._frame_packets = None
+        if self._frame_clean:
+            self._done_unique = self._frame_unique
 
     def unique_pixels(self, unique):
         """Return the pixels of a unique frame as sent (raw 14-bit, or 8-bit with AGC)."""
@@ -369,6 +388,8 @@ class LeptonSimulator:
             packets = self._inject(kind, packets, unique, copy)
             if self._frame_faults:
                 self._frame_blob = None
+        self._frame_unique = unique
+        self._frame_clean = kind not in DAMAGING_FAULTS
         self._frame_packets = packets
         self._position = 0
 
