@@ -39,6 +39,8 @@ def _write(tmp_path, document):
     (lambda d: d.pop('projection_matrix'), "missing field 'projection_matrix'"),
     (lambda d: d.update(image_width=0), 'image_width must be a positive integer'),
     (lambda d: d.update(distortion_model='fisheye9'), 'distortion_model must be one of'),
+    # Found by .ci/fuzz.py (was TypeError: unhashable type: 'dict'):
+    (lambda d: d.update(distortion_model={'rows': 3}), 'distortion_model must be one of'),
     (lambda d: d['camera_matrix'].update(rows=2), 'camera_matrix must be 3x3'),
     (lambda d: d['projection_matrix'].update(data=[1, 2]), 'must hold rows\\*cols = 12'),
     (lambda d: d['distortion_coefficients'].update(cols=4, data=[0, 0, 0, 0]),

@@ -83,7 +83,7 @@ def parse_calibration(document, source='<calibration>'):
             raise CalibrationError(f'{source}: {field} must be a positive integer, got '
                                    f'{value!r}')
     model = document.get('distortion_model')
-    if model not in DISTORTION_MODELS:
+    if not isinstance(model, str) or model not in DISTORTION_MODELS:
         raise CalibrationError(f'{source}: distortion_model must be one of '
                                f'{", ".join(DISTORTION_MODELS)}, got {model!r}')
     matrices = {field: _matrix(document, field, shape, source)
@@ -110,19 +110,23 @@ def load_calibration(path):
     if not os.path.isfile(path):
         raise CalibrationError(f'{path}: calibration file not found')
     with open(path, 'rb') as stream:
-        raw = stream.read()
+        return calibration_from_bytes(stream.read(), path)
+
+
+def calibration_from_bytes(raw, source='<calibration>'):
+    """Parse and validate camera_calibration YAML bytes; CalibrationError names ``source``."""
     try:
         text = raw.decode('utf-8')
     except UnicodeDecodeError as error:
-        raise CalibrationError(f'{path}: not UTF-8 text (byte {error.start}: '
+        raise CalibrationError(f'{source}: not UTF-8 text (byte {error.start}: '
                                f'0x{raw[error.start]:02x})') from None
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        raise CalibrationError(f'{path}: not valid YAML: {error}') from None
+        raise CalibrationError(f'{source}: not valid YAML: {error}') from None
     except RecursionError:
-        raise CalibrationError(f'{path}: not valid YAML: nested too deeply') from None
-    return parse_calibration(document, path)
+        raise CalibrationError(f'{source}: not valid YAML: nested too deeply') from None
+    return parse_calibration(document, source)
 
 
 def calibration_document(calibration):

@@ -16,8 +16,7 @@ import struct
 import numpy as np
 
 from st_stereo.lepton.assembler import TELEMETRY_MODES
-from st_stereo.lepton.packets import (is_discard, packet_crc, packet_number,
-                                      RAW14_PACKET_BYTES, RGB888_PACKET_BYTES)
+from st_stereo.lepton.packets import packet_crc, RAW14_PACKET_BYTES, RGB888_PACKET_BYTES
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.lepton.telemetry import parse_telemetry_row_a
 
@@ -104,7 +103,11 @@ def read_capture(path):
     if not os.path.isfile(path):
         raise CaptureError(f'{path}: no such capture file')
     with open(path, 'rb') as stream:
-        blob = stream.read()
+        return parse_capture(stream.read(), path)
+
+
+def parse_capture(blob, path='<capture>'):
+    """Parse the bytes of a capture as ``read_capture`` does; errors name ``path``."""
     if not blob.startswith(MAGIC):
         return {}, blob, None, 0
     offset = len(MAGIC)
@@ -210,46 +213,55 @@ def _next_record(blob, offset, last_stamp):
     return len(blob)
 
 
+def valid_packet_starts(data, start=0, stop=None, packet_bytes=RAW14_PACKET_BYTES):
+    """
+    Byte offsets in ``[start, stop)`` where a video packet with a valid CRC begins.
+
+    Any alignment; discards (no CRC) and packet numbers >= 63 are not counted, nor is a packet
+    whose CRC field is 0: a window of zeros has a trivially valid CRC (CRC-16/XMODEM of zeros
+    is 0), zero-filled discards hold such windows at every offset, and a discard followed by
+    a packet 0 (ID 0x0000) holds one 2 bytes before the real packet 0. A real packet has CRC 0
+    once in 65,536; a search for packet boundaries then takes the next packet. Candidates are
+    found with numpy; only they are CRC-checked.
+    """
+    last = len(data) - packet_bytes
+    stop = last + 1 if stop is None else min(stop, last + 1)
+    if stop <= start:
+        return np.zeros(0, dtype=np.int64)
+    view = memoryview(data)
+    head = np.frombuffer(view[start:stop + 3], dtype=np.uint8)
+    count = stop - start
+    candidates = np.flatnonzero(((head[:count] & 0x0F) == 0) & (head[1:count + 1] < 63) &
+                                ((head[2:count + 2] | head[3:count + 3]) != 0)) + start
+    return np.array([offset for offset in candidates.tolist()
+                     if packet_crc(view[offset:offset + packet_bytes]) ==
+                     ((data[offset + 2] << 8) | data[offset + 3])], dtype=np.int64)
+
+
 def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
     """Byte offset (0..packet_bytes-1) at which most probed packets have a valid CRC."""
-    best, best_offset = -1, 0
-    for offset in range(packet_bytes):
-        valid = 0
-        end = min(len(data), offset + probe_packets * packet_bytes)
-        for start in range(offset, end - packet_bytes + 1, packet_bytes):
-            packet = data[start:start + packet_bytes]
-            packet_id = (packet[0] << 8) | packet[1]
-            if not is_discard(packet_id) and packet_crc(packet) == ((packet[2] << 8) | packet[3]):
-                valid += 1
-        if valid > best:
-            best, best_offset = valid, offset
-    return best_offset, best
+    starts = valid_packet_starts(data, 0, (probe_packets + 1) * packet_bytes, packet_bytes)
+    offsets = starts % packet_bytes
+    counts = np.bincount(offsets[starts < offsets + probe_packets * packet_bytes],
+                         minlength=packet_bytes)
+    best_offset = int(np.argmax(counts))
+    return best_offset, int(counts[best_offset])
 
 
-def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES, block=1 << 16):
+def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
     """
     Byte offset >= ``position`` of the next video packet with a valid CRC (any alignment).
 
-    Returns ``len(data)`` when there is none. This is how a decoder finds packet boundaries
-    again after lost or extra bytes, as a live reader does after a resync. An all-zero packet
-    is not one: its CRC is trivially valid (CRC-16/XMODEM of zeros is 0), and a discard whose
-    payload is zeros followed by a packet 0 (ID 0x0000) holds one at 2 bytes before the real
-    packet 0. Candidates (packet number < 63) are found ``block`` bytes at a time with numpy;
-    only they are CRC-checked.
+    Returns ``len(data)`` when there is none (see ``valid_packet_starts``). This is how a
+    decoder finds packet boundaries again after lost or extra bytes, as a live reader does
+    after a resync. Searched in blocks that double in size (the next packet is usually near).
     """
-    last = len(data) - packet_bytes
-    view = memoryview(data)
-    start = position
-    while start <= last:
-        stop = min(start + block, last + 1)
-        head = np.frombuffer(view[start:stop + 1], dtype=np.uint8)
-        candidates = np.flatnonzero(((head[:-1] & 0x0F) == 0) & (head[1:] < 63))
-        for offset in (candidates + start).tolist():
-            packet = view[offset:offset + packet_bytes]
-            if packet_crc(packet) == ((data[offset + 2] << 8) | data[offset + 3]) and \
-                    any(packet[1:]):
-                return offset
-        start = stop
+    start, block = position, 4 * packet_bytes
+    while start <= len(data) - packet_bytes:
+        found = valid_packet_starts(data, start, start + block, packet_bytes)
+        if len(found):
+            return int(found[0])
+        start, block = start + block, min(2 * block, 1 << 20)
     return len(data)
 
 
@@ -269,21 +281,15 @@ def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
     offset, valid = find_alignment(data, packet_bytes)
     if valid == 0:
         raise CaptureError('no valid Lepton packet found (not a VoSPI Raw14 stream?)')
-    numbers, rows = [], {}
-    for start in range(offset, len(data) - packet_bytes + 1, packet_bytes):
-        packet = data[start:start + packet_bytes]
-        packet_id = (packet[0] << 8) | packet[1]
-        if is_discard(packet_id) or packet_crc(packet) != ((packet[2] << 8) | packet[3]):
-            continue
-        number = packet_number(packet_id)
-        numbers.append(number)
-        if number in (0, 60):
-            rows.setdefault(number, []).append(packet[4:])
+    starts = valid_packet_starts(data, 0, None, packet_bytes)
+    starts = starts[starts % packet_bytes == offset].tolist()
+    numbers = [((data[s] << 8) | data[s + 1]) & 0x0FFF for s in starts]
     if max(numbers) <= 59:
         return 'off'
     scores = {}
-    for mode, number in (('header', 0), ('footer', 60)):
-        counters = [parse_telemetry_row_a(p).frame_counter for p in rows.get(number, [])]
+    for mode, row in (('header', 0), ('footer', 60)):
+        counters = [parse_telemetry_row_a(data[s + 4:s + packet_bytes]).frame_counter
+                    for s, number in zip(starts, numbers) if number == row]
         steps = np.diff(counters) if len(counters) > 1 else np.zeros(0)
         scores[mode] = float(np.mean((steps >= 0) & (steps <= 3))) if len(steps) else 0.0
     return max(scores, key=scores.get)
@@ -357,10 +363,8 @@ class ReplayTransport:
         # The search may start a little before bytes already read (see ``unread``), never at
         # or before the packet the last search found: every search moves on.
         start = max(self.position, self._search_from)
-        found = next_valid_packet(self.data, start, self.packet_bytes)
-        if found >= len(self.data):
-            found = start                  # nothing valid left: the reader reaches the end
-        self.skipped_bytes += found - start
+        found = next_valid_packet(self.data, start, self.packet_bytes)   # end when none
+        self.skipped_bytes += max(found - start, 0)
         self.position = found
         self._search_from = found + 1
 
@@ -407,7 +411,12 @@ def decode_capture(path, telemetry=None, spi_hz=None):
         The mode used (given, from the header, or detected).
 
     """
-    header, data, times, damaged = read_capture(path)
+    return decode_parsed_capture(read_capture(path), path, telemetry, spi_hz)
+
+
+def decode_parsed_capture(capture, path='<capture>', telemetry=None, spi_hz=None):
+    """Decode a parsed capture (``parse_capture``'s result) as ``decode_capture`` does."""
+    header, data, times, damaged = capture
     settings = header_settings(path, header)
     if len(data) < RAW14_PACKET_BYTES:
         raise CaptureError(f'{path}: {len(data)} bytes: shorter than one packet')
