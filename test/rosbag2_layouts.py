@@ -65,6 +65,14 @@ DEFINITIONS = {
         'uint8 is_bigendian\nuint32 step\nuint8[] data\n' + '=' * 80 +
         '\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n' + '=' * 80 +
         '\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n'),
+    'sensor_msgs/msg/CameraInfo': (
+        'std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n'
+        'float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n'
+        'uint32 binning_y\nRegionOfInterest roi\n' + '=' * 80 +
+        '\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n' + '=' * 80 +
+        '\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n' + '=' * 80 +
+        '\nMSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\n'
+        'uint32 height\nuint32 width\nbool do_rectify\n'),
     'acme_msgs/msg/Thing': 'int32 value\n',
 }
 # RIHS01 type hashes as rclpy (Jazzy) reports them for the publishers of these types.
@@ -73,6 +81,8 @@ TYPE_HASHES = {
         'RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18',
     'sensor_msgs/msg/Image':
         'RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47',
+    'sensor_msgs/msg/CameraInfo':
+        'RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275',
     'acme_msgs/msg/Thing':
         'RIHS01_' + '0' * 64,
 }

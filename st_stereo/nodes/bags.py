@@ -2,10 +2,12 @@
 ``bag_record`` and ``bag_play``: rosbag2 without the ros2 CLI, through ``rosbags``.
 
 Recording subscribes in raw mode (the CDR bytes, identical to rclpy's) and writes MCAP
-(metadata version 9, as Jazzy does). Playback reads any rosbag2 that ``rosbags`` reads (sqlite3
-or MCAP, metadata versions 4 to 9, split into several files or not) and publishes every
-topic's recorded bytes unchanged, with its recorded type and QoS, at the recorded pace
-(``rate`` times faster or slower), optionally publishing ``/clock``.
+(metadata version 9, as Jazzy does), optionally zstd-compressed per message or per file.
+Playback reads every rosbag2 layout ``ros2 bag record`` wrote (sqlite3 or MCAP, metadata
+versions 4 to 9, split, compressed; see docs/bags.md) and publishes every topic's recorded
+bytes unchanged, with its recorded type and QoS (reliability and durability, as ros2 bag
+play adapts them), at the recorded pace (``rate`` times faster or slower), optionally
+publishing ``/clock``.
 """
 
 import argparse
@@ -17,13 +19,14 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
-from rosbags.rosbag2 import Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 from st_stereo.bag_reading import bag_messages, BagError, message_class, open_bag
 from st_stereo.nodes.runtime import with_default_namespace
 
+COMPRESSION_MODES = ('none', 'file', 'message')
 RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
                    'right/camera_info')
 
@@ -75,14 +78,21 @@ def qos_from_recorded(profiles):
 class BagRecorder(Node):
     """Record topics (raw bytes and each publisher's offered QoS) into an MCAP rosbag2."""
 
-    def __init__(self, path, topics, **kwargs):
+    def __init__(self, path, topics, compression_mode='none', **kwargs):
         super().__init__('bag_record', **with_default_namespace(kwargs))
         self.path = pathlib.Path(path)
         if self.path.exists():
             raise FileExistsError(f'{self.path}: the bag already exists')
+        if compression_mode not in COMPRESSION_MODES:
+            raise ValueError(f'compression mode: expected one of {", ".join(COMPRESSION_MODES)}'
+                             f', got {compression_mode!r}')
         self.topics = [self.resolve_topic_name(t) for t in topics]
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        if compression_mode != 'none':
+            # As ros2 bag record --compression-mode file|message --compression-format zstd.
+            self.writer.set_compression(CompressionMode[compression_mode.upper()],
+                                        CompressionFormat.ZSTD)
         self.writer.open()
         self.connections = {}
         self.counts = dict.fromkeys(self.topics, 0)
@@ -187,9 +197,11 @@ def record_main(argv=None):
     parser = argparse.ArgumentParser(prog='bag_record', description=record_main.__doc__)
     parser.add_argument('output', help='bag directory to create')
     parser.add_argument('topics', nargs='*', default=list(RAW_PAIR_TOPICS))
+    parser.add_argument('--compression-mode', choices=COMPRESSION_MODES, default='none',
+                        help='zstd-compress each message or each closed file (none)')
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['bag_record', *ros_args] if ros_args else None)
-    node = BagRecorder(args.output, args.topics)
+    node = BagRecorder(args.output, args.topics, args.compression_mode)
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
