@@ -265,6 +265,9 @@ def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
     return len(data)
 
 
+DETECT_BYTES = 4 << 20      # the first 4 MB (over 400 frames) decide the telemetry mode
+
+
 def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
     """
     Telemetry mode of a stream: 'off' (60 packets a frame), 'header' or 'footer' (63).
@@ -281,7 +284,7 @@ def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
     offset, valid = find_alignment(data, packet_bytes)
     if valid == 0:
         raise CaptureError('no valid Lepton packet found (not a VoSPI Raw14 stream?)')
-    starts = valid_packet_starts(data, 0, None, packet_bytes)
+    starts = valid_packet_starts(data, 0, DETECT_BYTES, packet_bytes)
     starts = starts[starts % packet_bytes == offset].tolist()
     numbers = [((data[s] << 8) | data[s + 1]) & 0x0FFF for s in starts]
     if max(numbers) <= 59:

@@ -119,3 +119,72 @@ def fault_matrix_markdown(cases):
                      f'{case.corrupt} | {"yes" if case.ordered else "NO"} | {counted} | '
                      f'{row["max_recovery_resync_s"]:.3f} | {row["max_recovery_reboot_s"]:.3f} |')
     return '\n'.join(lines)
+
+
+# --- plain SPI byte files: realignment after lost or extra bytes --------------------------
+REALIGN_FAULTS = ('crc', 'missing', 'misalign', 'repeat', 'discard_burst')
+
+
+def write_plain_byte_capture(path, total_rate, seed, telemetry='off', seconds=60.0):
+    """
+    Write what a live reader read as plain concatenated SPI bytes (as other tools record).
+
+    Faults ``REALIGN_FAULTS`` in equal shares of ``total_rate`` per core frame. Returns the
+    simulated camera: its ``intended`` and ``intact`` are the ground truth of a decoder.
+    """
+    from st_stereo.lepton.capture import RecordingTransport
+    rates = {kind: total_rate / len(REALIGN_FAULTS) for kind in REALIGN_FAULTS}
+    camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry=telemetry,
+                             faults=FaultPlan(rates), seed=seed, phase_s=0.011)
+    chunks = []
+
+    class _Plain:
+        def read(self, stamp, data):
+            chunks.append(data)
+
+        def idle(self, stamp, seconds):
+            pass
+
+    reader = LeptonReader(RecordingTransport(camera, _Plain()), telemetry=telemetry,
+                          frame_gap_wait=False)
+    while camera.now() < seconds:
+        reader.read_frame(timeout_s=1.0)
+    with open(path, 'wb') as stream:
+        stream.write(b''.join(chunks))
+    return camera
+
+
+def score_decoded(camera, decoded_pixels):
+    """Return {intact, decoded_intact, corrupt, twice} of decoded frames against the camera."""
+    sent = {pixels.tobytes() for pixels in camera.intended.values()}
+    intact = {camera.intended[unique].tobytes() for unique, copies in camera.intact.items()
+              if copies > 0}
+    decoded = [pixels.tobytes() for pixels in decoded_pixels]
+    return {'intact': len(intact), 'decoded_intact': len(intact & set(decoded)),
+            'corrupt': sum(pixels not in sent for pixels in decoded),
+            'twice': len(decoded) - len(set(decoded))}
+
+
+def realign_table(cases, seconds=60.0):
+    """Markdown table of plain-byte decoding for ``cases`` of (total_rate, seed, telemetry)."""
+    import os
+    import tempfile
+    import time
+    from st_stereo.lepton.capture import decode_capture
+    lines = ['| total fault rate | seed | telemetry | frames with an intact copy | decoded of '
+             'them | corrupt | twice | bytes skipped | decode time |',
+             '|---:|---:|---|---:|---:|---:|---:|---:|---:|']
+    with tempfile.TemporaryDirectory() as folder:
+        for total_rate, seed, telemetry in cases:
+            path = os.path.join(folder, 'plain.bin')
+            camera = write_plain_byte_capture(path, total_rate, seed, telemetry, seconds)
+            start = time.perf_counter()
+            frames, counters, _ = decode_capture(path)
+            elapsed = time.perf_counter() - start
+            score = score_decoded(camera, [frame.pixels for frame in frames])
+            share = score['decoded_intact'] / max(score['intact'], 1)
+            lines.append(f'| {100 * total_rate:.0f} % | {seed} | {telemetry} | '
+                         f'{score["intact"]} | {score["decoded_intact"]} ({100 * share:.1f} %)'
+                         f' | {score["corrupt"]} | {score["twice"]} | '
+                         f'{counters["bytes_skipped_realigning"]:,} | {elapsed:.1f} s |')
+    return '\n'.join(lines)

@@ -127,6 +127,16 @@ def command_faults(args):
     return 0 if all(c.corrupt == 0 and c.ordered for c in cases) else 1
 
 
+def command_realign(args):
+    """``st-stereo lepton realign``: the table of docs/lepton.md (Captures)."""
+    from st_stereo.lepton.faultbench import realign_table
+    cases = [(0.05, 3, 'off'), (0.05, 4, 'off'), (0.20, 3, 'off'), (0.20, 4, 'off'),
+             (0.20, 5, 'footer'), (0.20, 6, 'footer'), (0.20, 5, 'header'),
+             (0.20, 6, 'header'), (0.40, 7, 'off')]
+    print(realign_table(cases, args.seconds))
+    return 0
+
+
 def add_parser(sub):
     """Add ``lepton`` and its subcommands to the ``st-stereo`` parser."""
     lepton = sub.add_parser('lepton', help='Lepton captures: simulate, decode, bench')
@@ -151,6 +161,10 @@ def add_parser(sub):
     p.add_argument('--rates', default='0.01,0.05,0.15', help='fault rates per core frame')
     p.add_argument('--seconds', type=float, default=60.0, help='simulated seconds per case')
     p.set_defaults(handler=command_faults)
+    p = tools.add_parser('realign', help='plain SPI byte files with lost and extra bytes: '
+                         'frames decoded against the simulator ground truth, as a table')
+    p.add_argument('--seconds', type=float, default=60.0, help='simulated seconds per case')
+    p.set_defaults(handler=command_realign)
     p = tools.add_parser('bench', help='parsing + assembly speed, two cameras')
     p.add_argument('--seconds', type=float, default=60.0, help='seconds of stream per camera')
     p.set_defaults(handler=command_bench)
