@@ -170,8 +170,12 @@ def run_child(target, corpus, work, seconds, runs, rss_mb):
     result = subprocess.run(command, capture_output=True, text=True, cwd=work)
     log = result.stdout + result.stderr
     done = re.findall(r'stat::number_of_executed_units:\s*(\d+)', log)
+    # libFuzzer counts the replay of the corpus a child starts from (up to the INITED line):
+    # only the inputs after it are new ones.
+    inited = re.findall(r'^#(\d+)\s+INITED', log, re.MULTILINE)
+    new_inputs = int(done[-1]) - int(inited[0]) if done and inited else 0
     peak = re.findall(r'stat::peak_rss_mb:\s*(\d+)', log)
-    return (int(done[-1]) if done else 0, int(peak[-1]) if peak else 0, result.returncode,
+    return (new_inputs, int(peak[-1]) if peak else 0, result.returncode,
             '\n'.join(log.strip().splitlines()[-25:]))
 
 
@@ -201,8 +205,10 @@ def run_target(target, seconds, runs, rss_mb, work):
     while time.monotonic() - start < seconds and (not runs or total < runs):
         left = seconds - (time.monotonic() - start)
         chunk = CHUNK_RUNS if not runs else min(CHUNK_RUNS, runs - total)
+        # -runs counts the replay of the corpus too: add its size, so a child runs ``chunk``
+        # new inputs (fewer when the time is up).
         done, child_peak, code, tail = run_child(target, corpus, work, max(int(left), 1),
-                                                 chunk, rss_mb)
+                                                 chunk + len(os.listdir(corpus)), rss_mb)
         total, peak = total + done, max(peak, child_peak)
         if code != 0 or not done:
             row.update(exit=code, log_tail=tail)

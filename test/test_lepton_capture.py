@@ -136,3 +136,76 @@ def test_captures_with_lost_or_extra_bytes_lose_only_the_damaged_records(tmp_pat
     assert len(set(decoded)) == len(decoded)
     assert len(decoded) >= len(truth) - 2 * 12
     assert [f.stamp for f in frames] == sorted(f.stamp for f in frames)
+
+
+def _first_frame_bounds(data):
+    from st_stereo.lepton.capture import valid_packet_starts
+    starts = valid_packet_starts(data)
+    numbers = np.array([((data[s] & 0x0F) << 8) | data[s + 1] for s in starts.tolist()])
+    return int(starts[numbers == 0][0]), int(starts[numbers == numbers.max()][0]) + 164
+
+
+def test_telemetry_mode_is_detected_across_a_misalignment_and_from_a_gap(tmp_path):
+    # Review findings: one extra byte after the first frame made the detector see one frame
+    # and pick 'header' (every frame corrupt); a file starting between two frames (only
+    # discards in the first 400 packets) could not be decoded without --telemetry.
+    from st_stereo.lepton.capture import decode_parsed_capture
+    path = tmp_path / 'footer.bin'
+    simulate_capture(path, 3.0, 'footer', None, seed=3, plain=True)
+    data = path.read_bytes()
+    truth, _, _ = decode_parsed_capture(({}, data, None, 0), telemetry='footer')
+    sent = {frame.pixels.tobytes() for frame in truth}
+    first, end = _first_frame_bounds(data)
+    for blob in (data[first - 164:end] + b'\xaa' + data[end:], data[end + 164:]):
+        assert detect_telemetry_mode(blob) == 'footer'
+        frames, _, mode = decode_parsed_capture(({}, blob, None, 0))
+        assert mode == 'footer' and len(frames) >= len(truth) - 2
+        assert all(frame.pixels.tobytes() in sent for frame in frames)
+
+
+def test_a_fault_free_plain_file_skips_no_byte(tmp_path):
+    # Bytes re-read after a resync are not counted as skipped: only bytes never read are.
+    path = tmp_path / 'plain.bin'
+    simulate_capture(path, 3.0, 'off', None, seed=2, plain=True)
+    frames, counters, _ = decode_capture(path)
+    assert len(frames) > 20 and counters['bytes_skipped_realigning'] == 0
+
+
+@pytest.mark.parametrize('content', [b'R' * 300_000, b'I' * 300_000, b'RI' * 100_000])
+def test_records_of_repeated_kind_letters_are_refused(tmp_path, content):
+    # Was quadratic (20 s for 1.6 MB of b'R'): each step searched both letters to the end.
+    path = tmp_path / 'letters.stcap'
+    path.write_bytes(MAGIC + b'\x01\x00\x02\x00\x00\x00{}' + content)
+    with pytest.raises(CaptureError, match='no intact read record'):
+        read_capture(path)
+
+
+def test_an_intact_record_before_a_damaged_one_is_kept(tmp_path):
+    from st_stereo.lepton.capture import parse_capture
+    path = tmp_path / 'c.stcap'
+    simulate_capture(path, 1.0, 'off', None, seed=1)
+    blob = bytearray(path.read_bytes())
+    header_length = int.from_bytes(blob[10:14], 'little')
+    offset, records = 14 + header_length, []
+    while offset < len(blob):
+        kind = blob[offset:offset + 1]
+        size = int.from_bytes(blob[offset + 9:offset + 13], 'little') if kind == b'R' else 0
+        records.append((offset, kind, size))
+        offset += 13 + size if kind == b'R' else 17
+    _, intact_data, _, _ = parse_capture(bytes(blob))
+    k = next(i for i in range(len(records) // 2, len(records) - 1)
+             if records[i][1] == b'R' and records[i + 1][1] == b'I')
+    blob[records[k + 1][0]] = ord('X')             # the idle record after read k is damaged
+    _, data, _, damaged = parse_capture(bytes(blob))
+    assert damaged == 17 and data == intact_data
+
+
+def test_numbers_beyond_the_integer_digit_limit_are_named_errors(tmp_path):
+    # Found in review: Python 3.11 refuses int() of more than 4300 digits with ValueError.
+    from st_stereo.core.camera_calibration import calibration_from_bytes, CalibrationError
+    from st_stereo.lepton.capture import parse_capture
+    header = b'{"x": ' + b'1' * 5000 + b'}'
+    with pytest.raises(CaptureError, match='unreadable capture header'):
+        parse_capture(MAGIC + b'\x01\x00' + len(header).to_bytes(4, 'little') + header)
+    with pytest.raises(CalibrationError, match='not valid YAML'):
+        calibration_from_bytes(b'image_width: ' + b'1' * 5000)

@@ -204,3 +204,35 @@ def test_services_trigger_ffc_and_set_camera_info(ros, tmp_path):
     request.camera_info.width = 160
     response = driver._set_camera_info(0, request, SetCameraInfo.Response())
     assert not response.success and '160x60' in response.status_message
+
+
+@pytest.mark.timeout(180)
+def test_driver_replays_plain_byte_captures_in_the_mode_their_data_show(ros, tmp_path):
+    # Plain SPI bytes of cameras with a telemetry header, cut mid-packet: the telemetry
+    # parameter (default off) does not apply to a capture; the mode is detected, and every
+    # published image is a frame the camera sent (the default 'off' made them all corrupt).
+    from st_stereo.lepton.capture import decode_capture
+    from st_stereo.lepton.tools import simulate_capture
+    paths, sent = [], set()
+    for side, seed in (('left', 1), ('right', 2)):
+        full = tmp_path / f'{side}_full.bin'
+        simulate_capture(full, 3.0, 'header', None, seed=seed, plain=True)
+        frames, _, mode = decode_capture(full)
+        assert mode == 'header'
+        sent |= {frame.pixels.tobytes() for frame in frames}
+        cut = tmp_path / f'{side}.bin'
+        cut.write_bytes(full.read_bytes()[57:])
+        paths.append(cut)
+    context, executor, add = ros
+    images = []
+    listener = add(Node('images', context=context, namespace='stereo'))
+    listener.create_subscription(Image, 'left/image_raw', images.append, 50)
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('source', value='capture'), Parameter('left_capture', value=str(paths[0])),
+        Parameter('right_capture', value=str(paths[1]))]))
+    spin_until(executor, driver.finished.is_set, 60.0)
+    spin_until(executor, lambda: False, 1.0)
+    assert len(images) >= 5
+    pixels = [np.frombuffer(bytes(m.data), '<u2').reshape(m.height, m.width).tobytes()
+              for m in images]
+    assert all(p in sent for p in pixels)

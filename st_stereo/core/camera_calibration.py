@@ -126,6 +126,8 @@ def calibration_from_bytes(raw, source='<calibration>'):
         raise CalibrationError(f'{source}: not valid YAML: {error}') from None
     except RecursionError:
         raise CalibrationError(f'{source}: not valid YAML: nested too deeply') from None
+    except ValueError as error:      # e.g. an integer of more than 4300 digits
+        raise CalibrationError(f'{source}: not valid YAML: {error}') from None
     return parse_calibration(document, source)
 
 

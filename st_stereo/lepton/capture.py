@@ -11,6 +11,7 @@ synthesised from the byte position at the given SPI clock.
 import json
 import math
 import os
+import re
 import struct
 
 import numpy as np
@@ -119,7 +120,8 @@ def parse_capture(blob, path='<capture>'):
     offset += 6
     try:
         header = json.loads(blob[offset:offset + length].decode('utf-8'))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+    except (ValueError, RecursionError):     # also UnicodeDecodeError, JSONDecodeError,
+        # and the int() of a number of more than 4300 digits
         raise CaptureError(f'{path}: unreadable capture header') from None
     if not isinstance(header, dict):
         raise CaptureError(f'{path}: capture header: expected a JSON object, got '
@@ -132,8 +134,11 @@ def parse_capture(blob, path='<capture>'):
     first_problem = None
     while offset < len(blob):
         record = _plausible_record(blob, offset, last_stamp)
+        # A plausible record is kept when the next one chains to it, or when the damage is
+        # after it: no chained record starts inside it.
         if record is not None and (record[2] == len(blob) or _plausible_record(
-                blob, record[2], record[1]) is not None):
+                blob, record[2], record[1]) is not None or
+                _next_record(blob, offset + 1, last_stamp, record[2]) >= record[2]):
             kind, last_stamp, end = record
             if kind == b'R':
                 chunks.append(blob[offset + READ_RECORD.size:end])
@@ -198,19 +203,22 @@ def _record_problem(blob, offset):
     return f'implausible record at byte {offset}'
 
 
-def _next_record(blob, offset, last_stamp):
-    """Offset of the next place where plausible records chain (or the end of the file)."""
-    while offset < len(blob):
-        hits = [i for i in (blob.find(b'R', offset), blob.find(b'I', offset)) if i >= 0]
-        if not hits:
-            return len(blob)
-        offset = min(hits)
+_RECORD_KIND = re.compile(b'[RI]')
+
+
+def _next_record(blob, offset, last_stamp, limit=None):
+    """Offset of the next place before ``limit`` where plausible records chain, else limit."""
+    limit = len(blob) if limit is None else min(limit, len(blob))
+    while True:
+        found = _RECORD_KIND.search(blob, offset, limit)
+        if found is None:
+            return limit
+        offset = found.start()
         record = _plausible_record(blob, offset, last_stamp)
         if record is not None and (record[2] == len(blob) or _plausible_record(
                 blob, record[2], record[1]) is not None):
             return offset
         offset += 1
-    return len(blob)
 
 
 def valid_packet_starts(data, start=0, stop=None, packet_bytes=RAW14_PACKET_BYTES):
@@ -238,16 +246,6 @@ def valid_packet_starts(data, start=0, stop=None, packet_bytes=RAW14_PACKET_BYTE
                      ((data[offset + 2] << 8) | data[offset + 3])], dtype=np.int64)
 
 
-def find_alignment(data, packet_bytes=RAW14_PACKET_BYTES, probe_packets=400):
-    """Byte offset (0..packet_bytes-1) at which most probed packets have a valid CRC."""
-    starts = valid_packet_starts(data, 0, (probe_packets + 1) * packet_bytes, packet_bytes)
-    offsets = starts % packet_bytes
-    counts = np.bincount(offsets[starts < offsets + probe_packets * packet_bytes],
-                         minlength=packet_bytes)
-    best_offset = int(np.argmax(counts))
-    return best_offset, int(counts[best_offset])
-
-
 def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
     """
     Byte offset >= ``position`` of the next video packet with a valid CRC (any alignment).
@@ -265,36 +263,47 @@ def next_valid_packet(data, position, packet_bytes=RAW14_PACKET_BYTES):
     return len(data)
 
 
-DETECT_BYTES = 4 << 20      # the first 4 MB (over 400 frames) decide the telemetry mode
+DETECT_BYTES = 4 << 20      # 4 MB from the first packet (over 400 frames) decide the mode
 
 
 def detect_telemetry_mode(data, packet_bytes=RAW14_PACKET_BYTES):
     """
     Telemetry mode of a stream: 'off' (60 packets a frame), 'header' or 'footer' (63).
 
-    With 63 packets, row A holds a frame counter that never decreases from frame to frame:
-    the mode is the one whose candidate row A (packet 0 or packet 60) behaves so.
+    Every CRC-valid packet that continues a sequence (the one a packet length before it is
+    valid and numbered one less) counts, at whatever byte alignment: lost or extra bytes may
+    shift the stream at any point. Packets numbered 60-62 mean telemetry; then row A holds a
+    frame counter that never decreases from frame to frame: the mode is the one whose
+    candidate row A (packet 0 or packet 60) behaves so.
 
     Raises
     ------
     CaptureError
-        When the stream holds no valid video packet at all.
+        When the stream holds no valid video packet at all, or too few frames to tell a
+        telemetry header from a footer.
 
     """
-    offset, valid = find_alignment(data, packet_bytes)
-    if valid == 0:
+    first = next_valid_packet(data, 0, packet_bytes)
+    if first >= len(data):
         raise CaptureError('no valid Lepton packet found (not a VoSPI Raw14 stream?)')
-    starts = valid_packet_starts(data, 0, DETECT_BYTES, packet_bytes)
-    starts = starts[starts % packet_bytes == offset].tolist()
-    numbers = [((data[s] << 8) | data[s + 1]) & 0x0FFF for s in starts]
-    if max(numbers) <= 59:
+    starts = valid_packet_starts(data, first, first + DETECT_BYTES, packet_bytes)
+    numbers = np.array([((data[s] << 8) | data[s + 1]) & 0x0FFF for s in starts.tolist()],
+                       dtype=np.int64)
+    index = dict(zip(starts.tolist(), numbers.tolist()))
+    follows = np.array([index.get(start - packet_bytes, -2) == number - 1
+                        for start, number in zip(starts.tolist(), numbers.tolist())], dtype=bool)
+    if not (follows & (numbers >= 60)).any():
         return 'off'
     scores = {}
     for mode, row in (('header', 0), ('footer', 60)):
+        rows = starts[(numbers == row) & (follows if row else True)].tolist()
         counters = [parse_telemetry_row_a(data[s + 4:s + packet_bytes]).frame_counter
-                    for s, number in zip(starts, numbers) if number == row]
+                    for s in rows]
         steps = np.diff(counters) if len(counters) > 1 else np.zeros(0)
         scores[mode] = float(np.mean((steps >= 0) & (steps <= 3))) if len(steps) else 0.0
+    if scores['header'] == scores['footer']:
+        raise CaptureError('telemetry is on, but too few frames to tell a header from a footer: '
+                           'give the mode (--telemetry header or footer)')
     return max(scores, key=scores.get)
 
 
@@ -310,8 +319,10 @@ class ReplayTransport:
         self.max_read_bytes = 1 << 20
         self.seconds_per_byte = 8.0 / spi_hz
         self._clock = 0.0
-        self.skipped_bytes = 0           # bytes passed over to find packet boundaries again
+        self.skipped_bytes = 0           # bytes never read: passed over to find boundaries
         self._search_from = 0            # the next search starts past the last packet found
+        self._read_up_to = start_offset  # end of the furthest read (re-reads are not skips)
+        self._record_starts = set(times[0].tolist()) if times is not None else None
 
     def now(self):
         """Time of the byte about to be read (recorded, or synthesised)."""
@@ -336,6 +347,7 @@ class ReplayTransport:
             end = min(end, self._record_end())
         chunk = self.data[self.position:end]
         self.position += len(chunk)
+        self._read_up_to = max(self._read_up_to, self.position)
         return chunk
 
     def unread(self, nbytes):
@@ -357,7 +369,7 @@ class ReplayTransport:
         times only the clock moves on.
         """
         if self.times is not None:
-            if self.position not in set(self.times[0].tolist()):
+            if self.position not in self._record_starts:
                 self.position = self._record_end()
             return
         self._clock += seconds
@@ -367,7 +379,7 @@ class ReplayTransport:
         # or before the packet the last search found: every search moves on.
         start = max(self.position, self._search_from)
         found = next_valid_packet(self.data, start, self.packet_bytes)   # end when none
-        self.skipped_bytes += max(found - start, 0)
+        self.skipped_bytes += max(found - max(start, self._read_up_to), 0)
         self.position = found
         self._search_from = found + 1
 
@@ -417,9 +429,14 @@ def decode_capture(path, telemetry=None, spi_hz=None):
     return decode_parsed_capture(read_capture(path), path, telemetry, spi_hz)
 
 
-def decode_parsed_capture(capture, path='<capture>', telemetry=None, spi_hz=None):
-    """Decode a parsed capture (``parse_capture``'s result) as ``decode_capture`` does."""
-    header, data, times, damaged = capture
+def replay_reader(capture, path='<capture>', telemetry=None, spi_hz=None):
+    """
+    Return ``(reader, transport, mode)`` replaying a parsed capture (``parse_capture``).
+
+    The telemetry mode is ``telemetry`` when given, else the header's, else detected from the
+    data; a plain byte file starts at its first CRC-valid packet.
+    """
+    header, data, times, _ = capture
     settings = header_settings(path, header)
     if len(data) < RAW14_PACKET_BYTES:
         raise CaptureError(f'{path}: {len(data)} bytes: shorter than one packet')
@@ -427,9 +444,15 @@ def decode_parsed_capture(capture, path='<capture>', telemetry=None, spi_hz=None
         mode = telemetry or settings['telemetry'] or detect_telemetry_mode(data)
     except CaptureError as error:
         raise CaptureError(f'{path}: {error}') from None
-    start = 0 if times is not None else find_alignment(data)[0]
+    start = 0 if times is not None else next_valid_packet(data, 0)
     transport = ReplayTransport(data, times, spi_hz or settings['spi_hz'], start_offset=start)
     reader = LeptonReader(transport, telemetry=mode, frame_gap_wait=False, no_video_s=1e9)
+    return reader, transport, mode
+
+
+def decode_parsed_capture(capture, path='<capture>', telemetry=None, spi_hz=None):
+    """Decode a parsed capture (``parse_capture``'s result) as ``decode_capture`` does."""
+    reader, transport, mode = replay_reader(capture, path, telemetry, spi_hz)
     frames = []
     try:
         while True:
@@ -441,7 +464,7 @@ def decode_parsed_capture(capture, path='<capture>', telemetry=None, spi_hz=None
         pass
     counters = reader.counters.as_dict()
     counters['bytes_skipped_realigning'] = transport.skipped_bytes
-    counters['capture_bytes_damaged'] = damaged
+    counters['capture_bytes_damaged'] = capture[3]
     return frames, counters, mode
 
 

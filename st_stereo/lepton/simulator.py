@@ -28,8 +28,10 @@ from st_stereo.lepton.telemetry import encode_telemetry_row_a
 RESYNC_MIN_IDLE_S = 0.185
 FAULT_KINDS = ('discard_burst', 'crc', 'id', 'payload', 'missing', 'repeat', 'reorder',
                'misalign', 'stall', 'stuck', 'ffc_freeze')
-# Faults that damage or lose a packet of the frame (the others leave every packet intact: a
-# repeated or reordered packet, discards inside the frame, a frozen image).
+# Faults that damage or lose a packet of the frame. The others leave every packet intact (a
+# repeated or reordered packet, discards inside the frame, a frozen image): such a copy counts
+# as intact although this project's assembler drops a frame with a repeated or reordered
+# packet, which makes ``intact`` a strict ground truth.
 DAMAGING_FAULTS = ('crc', 'id', 'payload', 'missing', 'misalign', 'stall', 'stuck')
 
 
@@ -268,6 +270,7 @@ class LeptonSimulator:
         self._stuck = False
         self._sync_lost = False
         self._pending = b''
+        self._done_unique = None           # a last packet cut short: not sent whole
         self._frame_packets = None
         self._booted_at = self.time
         self._next_core = self._core_index_ready(self.time + self.boot_s) + 1

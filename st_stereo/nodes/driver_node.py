@@ -170,20 +170,19 @@ class DriverNode(Node):
             readers = [LeptonReader(camera, telemetry=telemetry) for camera in cameras]
             return readers, cameras
         if self.source == 'capture':
-            from st_stereo.lepton.capture import header_settings, read_capture, ReplayTransport
+            from st_stereo.lepton.capture import read_capture, replay_reader
             readers = []
             for path, side in zip(captures, SIDES):
                 if not path:
                     raise ValueError(f'source capture: parameter {side}_capture is empty')
-                header, data, times, damaged = read_capture(path)
-                settings = header_settings(path, header)
-                if damaged:
+                capture = read_capture(path)
+                if capture[3]:
                     self.get_logger().warning(
-                        f'{path}: {damaged} bytes of damaged records passed over')
-                mode = settings['telemetry'] or telemetry
-                readers.append(LeptonReader(
-                    ReplayTransport(data, times, settings['spi_hz']), telemetry=mode,
-                    frame_gap_wait=False, no_video_s=1e9))
+                        f'{path}: {capture[3]} bytes of damaged records passed over')
+                # The mode a capture says, or the one its data show (not the parameter).
+                reader, _, mode = replay_reader(capture, path)
+                self.get_logger().info(f'{path}: telemetry {mode}')
+                readers.append(reader)
             return readers, [None, None]
         if self.source == 'bag':
             from st_stereo.nodes.bag_source import open_bag_sides

@@ -7,7 +7,8 @@ DRIVER_PARAMETERS = [
      'files), spi (two Leptons on spidev), purethermal (two PureThermal USB boards) or bag '
      '(the raw image topics of a rosbag2)'),
     ('bag', '', 'bag: rosbag2 directory holding left/image_raw and right/image_raw'),
-    ('telemetry', 'off', 'camera telemetry rows: off, header or footer'),
+    ('telemetry', 'off', 'camera telemetry rows: off, header or footer (a capture says its '
+     'own, or it is detected from its data)'),
     ('max_pair_delta', 0.05, 'largest difference of the two acquisition times of a stereo '
      'pair, seconds: two free-running Leptons drift through every phase, so their frames are '
      'up to half a unique-frame period (56.8 ms) apart; with 0.05 about 12 % of the time has '
