@@ -284,6 +284,19 @@ def command_eval_points(args):
     return 1 if failed and args.strict else 0
 
 
+def command_eval_skew(args):
+    """Disparity errors on moving people by camera skew, without and with compensation."""
+    from st_stereo.tools import eval_skew
+    report = eval_skew.evaluate(
+        sequences=[name for name in args.sequences.split(',') if name],
+        skews_ms=tuple(float(s) for s in args.skews.split(',') if s),
+        config=config_from_assignments(args.set), stride=args.stride,
+        max_frames=args.max_frames,
+        log=None if args.quiet else lambda line: print(line, file=sys.stderr))
+    print(eval_skew.markdown_report(report))
+    return 0
+
+
 def command_eval_all(args):
     """Every evaluation; writes the Markdown report, figures and JSON."""
     from st_stereo.tools.results import run_all
@@ -386,6 +399,16 @@ def build_parser():
     e.add_argument('--quiet', action='store_true')
     _add_config_option(e)
     e.set_defaults(handler=command_eval_points)
+    e = eval_sub.add_parser('skew', help='camera skew: disparity errors on moving people '
+                            'without and with compensation, by skew and image speed')
+    e.add_argument('--sequences', default='walk_across,two_people,sit_down,meeting_room')
+    e.add_argument('--skews', default=','.join(f'{s:g}' for s in (-55, -25, 10, 25, 40, 55)),
+                   help='skews t_right - t_left, milliseconds')
+    e.add_argument('--stride', type=int, default=4, help='score every N-th frame')
+    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
+    e.add_argument('--quiet', action='store_true')
+    _add_config_option(e)
+    e.set_defaults(handler=command_eval_skew)
     e = eval_sub.add_parser('calibration', help='st-stereo calibrate on simulated sessions '
                             'with known truth, and ST on the rectified result')
     e.add_argument('--pairs', type=int, default=200, help='pairs per session (default 200)')

@@ -94,6 +94,9 @@ def test_simulated_rig_end_to_end(ros):
     for key in ('features', 'matches', 'rejected_left_right', 'rejected_subpixel_range',
                 'time total (ms)', 'latency median (ms)', 'Actual frequency (Hz)'):
         assert key in matching
+    # The driver's pair_info gives each pair's skew; the simulated plane does not move.
+    assert int(matching['skew pairs_skew_compensated']) > 0
+    assert int(matching['skew features_moving']) == 0
 
 
 def test_parameters_out_of_range_are_rejected_with_the_reason(ros):

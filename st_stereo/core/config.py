@@ -120,6 +120,12 @@ class STConfig:
                                    '(docs/results.md: outliers against the share kept)',
                                    low=0.0, high=1.0)
 
+    # --- 5. Camera skew (two free-running cameras; st_stereo.core.skew) --------------------
+    skew_compensation: bool = _field(True, 'correct the disparities of moving features for '
+                                     'the camera skew of the pair (t_right - t_left, from '
+                                     'pair_info) by their image velocity on the left camera; '
+                                     'static features are never changed (docs/skew.md)')
+
     def __post_init__(self):
         """Validate every field against its metadata."""
         hints = typing.get_type_hints(type(self))

@@ -27,8 +27,10 @@ from st_stereo.bag_reading import bag_messages, BagError, message_class, open_ba
 from st_stereo.nodes.runtime import with_default_namespace
 
 COMPRESSION_MODES = ('none', 'file', 'message')
+# The raw pair and the driver's pair_info (both acquisition stamps of each pair: the matcher's
+# camera skew correction needs them on replay too).
 RAW_PAIR_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info',
-                   'right/camera_info')
+                   'right/camera_info', 'pair_info')
 
 
 def offered_qos(profile):

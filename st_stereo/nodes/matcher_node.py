@@ -2,8 +2,9 @@
 ``matcher``: ST on the rectified pair; publishes ``points2``, ``disparity``, diagnostics.
 
 Subscribes ``left/image_rect``, ``right/image_rect``, ``left/camera_info_rect``,
-``right/camera_info_rect`` (sensor-data QoS, exact stamp sync); every ST parameter is a ROS
-parameter with its range and can be changed live (validated by STConfig).
+``right/camera_info_rect`` (sensor-data QoS, exact stamp sync) and the driver's ``pair_info``
+(both acquisition stamps of each pair: the camera skew, see ``st_stereo.core.skew``); every ST
+parameter is a ROS parameter with its range and can be changed live (validated by STConfig).
 """
 
 import time
@@ -15,6 +16,7 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.matcher import StereoMatcher
+from st_stereo.core.skew import SkewCompensator
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
@@ -53,6 +55,9 @@ class MatcherNode(Node):
         topics = [(Image, 'left/image_rect'), (Image, 'right/image_rect'),
                   (CameraInfo, 'left/camera_info_rect'), (CameraInfo, 'right/camera_info_rect')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
+        self.skew = SkewCompensator()
+        self.pair_times = {}         # pair stamp -> (left acquisition time, skew), seconds
+        self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info, RELIABLE)
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0}
@@ -68,6 +73,23 @@ class MatcherNode(Node):
             self.matcher = StereoMatcher(config)
         return result
 
+    def _on_pair_info(self, msg):
+        values = {item.key: item.value for status in msg.status for item in status.values}
+        try:
+            left_time = float(values['left acquisition stamp'])
+            skew = float(values['skew (ms)']) * 1e-3
+        except (KeyError, ValueError):
+            return
+        self.pair_times[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (left_time, skew)
+        while len(self.pair_times) > 64:
+            self.pair_times.pop(next(iter(self.pair_times)))
+
+    def _compensate_skew(self, result, left, header, model, bounds):
+        stamp = (header.stamp.sec, header.stamp.nanosec)
+        left_time, skew = self.pair_times.pop(
+            stamp, (header.stamp.sec + header.stamp.nanosec * 1e-9, None))
+        return self.skew.correct(result, left, left_time, skew, model, bounds)
+
     def _on_pair(self, left_msg, right_msg, left_info, right_info):
         self.counts['pairs'] += 1
         try:
@@ -82,6 +104,9 @@ class MatcherNode(Node):
             matcher.model = model
             result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
                                    right_valid=data_mask(right_msg, right))
+            if self.config.skew_compensation:
+                result = self._compensate_skew(result, left, left_msg.header, model,
+                                               matcher.disparity_bounds())
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
@@ -120,6 +145,7 @@ class MatcherNode(Node):
         result = self.last_result
         if result is not None:
             values.update(result.counts)
+            values.update({f'skew {k}': v for k, v in self.skew.counts.items()})
             values.update({f'time {k} (ms)': round(v, 2) for k, v in
                            result.timings_ms.items()})
         if result is not None and not len(result) and level == diagnostics.OK:

@@ -281,24 +281,40 @@ class SequenceRenderer:
         labels.update({PERSON_LABEL_BASE + i: f'person{i}' for i in range(len(self.spec.people))})
         return Scene(self.shell, objects, labels), np.array(heads).reshape(-1, 3)
 
-    def frame(self, t, with_truth=True):
+    def frame(self, t, with_truth=True, right_t=None):
         """
-        Render the pair at time ``t``.
+        Render the pair: the left camera at time ``t``, the right one at ``right_t``.
+
+        Two free-running Leptons expose at different instants (``right_t`` defaults to ``t``,
+        a synchronized pair); the ground truth is the scene at the left camera's instant.
 
         Returns
         -------
         dict
             ``left``, ``right`` (uint16 raw frames), ``temperature`` (2, rows, cols),
-            ``truth`` (GroundTruth or None), ``heads_world`` and ``heads_rectified`` (n, 3).
+            ``truth`` (GroundTruth or None), ``heads_world`` and ``heads_rectified`` (n, 3),
+            ``times`` (left, right instants, seconds).
 
         """
+        right_t = t if right_t is None else right_t
         scene, heads = self.scene(t)
+        right_scene = scene if right_t == t else self.scene(right_t)[0]
         cameras = self.spec.rig.cameras()
-        temperatures = [render_temperature(scene, camera, self.supersample)
-                        for camera in cameras]
-        frames = [sensor.frame(temperature, t, self.noise)
-                  for sensor, temperature in zip(self.sensors, temperatures)]
+        temperatures = [render_temperature(view, camera, self.supersample)
+                        for view, camera in zip((scene, right_scene), cameras)]
+        frames = [sensor.frame(temperature, instant, self.noise)
+                  for sensor, temperature, instant in zip(self.sensors, temperatures,
+                                                          (t, right_t))]
         return {'left': frames[0], 'right': frames[1], 'temperature': np.array(temperatures),
                 'truth': ground_truth(scene, self.spec.rig, self.supersample)
                 if with_truth else None,
-                'heads_world': heads, 'heads_rectified': self.spec.rig.to_rectified_left(heads)}
+                'heads_world': heads, 'heads_rectified': self.spec.rig.to_rectified_left(heads),
+                'times': (t, right_t)}
+
+    def camera_frame(self, side, t):
+        """Render one camera (``'left'`` or ``'right'``) alone at ``t`` (uint16 raw frame)."""
+        index = ('left', 'right').index(side)
+        scene, _ = self.scene(t)
+        temperature = render_temperature(scene, self.spec.rig.cameras()[index],
+                                         self.supersample)
+        return self.sensors[index].frame(temperature, t, self.noise)

@@ -1,0 +1,203 @@
+"""
+Camera skew: two free-running cameras expose a pair at different instants.
+
+A Lepton 2 has no sync input; the right image of a pair is taken ``skew_s = t_right - t_left``
+after the left one (up to half a unique frame period, ~57 ms, either sign). A feature moving in
+the rectified image with horizontal velocity ``v_x`` (px/s) is then seen by the right camera
+``v_x * skew_s`` further along, and the measured disparity ``d' = x_L(t_L) - x_R(t_R)`` is off by
+that much:
+
+    d = d' + v_x * skew_s                                              (skew correction)
+
+``v_x`` is measured on the left camera alone, from its previous unique frame to the current one
+(a backward difference: no added latency), by tracking each feature's window: an integer
+zero-mean NCC search, then a parabola through the NCC at the best column and its neighbours.
+Features that do not move (best offset 0 and a sub-pixel shift below ``static_px``) get no
+correction at all, so a static scene keeps exactly the same disparities.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from st_stereo.core.triangulation import triangulate
+
+
+@dataclasses.dataclass
+class FeatureMotion:
+    """Horizontal image velocity of each feature, from the left camera's previous frame."""
+
+    velocity_x: np.ndarray      # px/s in the rectified image (0 where static or untracked)
+    moving: np.ndarray          # bool: a correction applies
+    tracked: np.ndarray         # bool: the window could be tracked (inside, NCC >= min_ncc)
+    ncc: np.ndarray             # best NCC of the track (nan where untracked)
+
+
+def _windows(image, y, x, half):
+    size = 2 * half + 1
+    blocks = np.lib.stride_tricks.sliding_window_view(image, (size, size))
+    return blocks[y - half, x - half]
+
+
+def _zero_mean_unit(windows):
+    centred = windows - windows.mean(axis=(1, 2), keepdims=True)
+    norm = np.sqrt((centred ** 2).sum(axis=(1, 2), keepdims=True))
+    return centred / np.maximum(norm, 1e-12)
+
+
+def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
+                   min_ncc=0.5, static_px=0.25):
+    """
+    Measure each feature's horizontal image velocity between two left frames.
+
+    Parameters
+    ----------
+    previous_left, left : ndarray, shape (rows, cols)
+        The left camera's previous unique rectified frame and the current one.
+    x, y : ndarray of int, shape (n,)
+        Feature pixels in ``left``.
+    period_s : float
+        Time between the two frames, seconds (> 0).
+    window : int
+        Side of the tracked window (odd).
+    search_x, search_y : int
+        Integer search range, pixels (``search_x / period_s`` is the fastest motion tracked).
+    min_ncc : float
+        A track whose best zero-mean NCC is below this is not trusted (no correction).
+    static_px : float
+        A feature whose displacement between the frames is below this is static.
+
+    Returns
+    -------
+    FeatureMotion
+
+    """
+    if period_s <= 0:
+        raise ValueError(f'period_s: expected > 0 s, got {period_s}')
+    previous = np.asarray(previous_left, dtype=np.float64)
+    current = np.asarray(left, dtype=np.float64)
+    if previous.shape != current.shape:
+        raise ValueError(f'previous_left: expected shape {current.shape}, got {previous.shape}')
+    x, y = np.asarray(x, dtype=np.int64), np.asarray(y, dtype=np.int64)
+    n = len(x)
+    rows, cols = current.shape
+    half = window // 2
+    reach_x, reach_y = half + search_x + 1, half + search_y
+    # Windows may leave the image: both frames are extended by edge replication (a feature
+    # near the border is still tracked, on the part of its window inside the image).
+    current = np.pad(current, ((reach_y, reach_y), (reach_x, reach_x)), mode='edge')
+    previous = np.pad(previous, ((reach_y, reach_y), (reach_x, reach_x)), mode='edge')
+    inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
+    velocity = np.zeros(n)
+    moving = np.zeros(n, dtype=bool)
+    tracked = np.zeros(n, dtype=bool)
+    best_ncc = np.full(n, np.nan)
+    index = np.flatnonzero(inside)
+    if len(index):
+        xi, yi = x[index] + reach_x, y[index] + reach_y
+        reference = _zero_mean_unit(_windows(current, yi, xi, half))
+        offsets_x = np.arange(-search_x - 1, search_x + 2)
+        offsets_y = np.arange(-search_y, search_y + 1)
+        # NCC at every offset at once: the (zero-mean, unit) template against the previous
+        # frame's windows (the template's zero mean makes their mean drop out); their norms
+        # come from box sums over the whole frame.
+        size = 2 * half + 1
+        region_y = yi[:, None] + np.arange(-search_y - half, search_y + half + 1)[None, :]
+        region_x = xi[:, None] + np.arange(-search_x - 1 - half, search_x + 2 + half)[None, :]
+        regions = previous[region_y[:, :, None], region_x[:, None, :]]
+        views = np.lib.stride_tricks.sliding_window_view(regions, (size, size), axis=(1, 2))
+        products = np.einsum('nabij,nij->nab', views, reference, optimize=True)
+        blocks = np.lib.stride_tricks.sliding_window_view(previous, (size, size))
+        sums, squares = blocks.sum(axis=(2, 3)), (blocks ** 2).sum(axis=(2, 3))
+        norms = np.sqrt(np.maximum(squares - sums ** 2 / size ** 2, 0.0))
+        top = yi[:, None, None] + offsets_y[None, :, None] - half
+        leftmost = xi[:, None, None] + offsets_x[None, None, :] - half
+        ncc = products / np.maximum(norms[top, leftmost], 1e-12)
+        # The best integer offset within the search range (the outer columns only serve the
+        # parabola), then the sub-pixel column.
+        inner = ncc[:, :, 1:-1]
+        flat = inner.reshape(len(index), -1).argmax(axis=1)
+        row, col = np.divmod(flat, inner.shape[2])
+        col += 1
+        k = np.arange(len(index))
+        peak = ncc[k, row, col]
+        left_value, right_value = ncc[k, row, col - 1], ncc[k, row, col + 1]
+        curvature = left_value - 2.0 * peak + right_value
+        sub = np.where(curvature < -1e-12,
+                       0.5 * (left_value - right_value) / np.where(curvature < -1e-12,
+                                                                   curvature, -1.0), 0.0)
+        # The feature was at x + offset in the previous frame: it moved by -(offset).
+        shift = -(offsets_x[col] + np.clip(sub, -0.5, 0.5))
+        good = peak >= min_ncc
+        static = (offsets_x[col] == 0) & (offsets_y[row] == 0) & (np.abs(shift) < static_px)
+        tracked[index] = good
+        best_ncc[index] = peak
+        moves = good & ~static
+        moving[index] = moves
+        velocity[index] = np.where(moves, shift / period_s, 0.0)
+    return FeatureMotion(velocity, moving, tracked, best_ncc)
+
+
+def skew_corrected_disparity(disparity, velocity_x, skew_s):
+    """
+    Return ``disparity + velocity_x * skew_s`` (see the module docstring).
+
+    ``skew_s`` is ``t_right - t_left`` of the pair, seconds; static features (velocity 0) keep
+    their disparity exactly.
+    """
+    return np.asarray(disparity, dtype=np.float64) + np.asarray(velocity_x) * float(skew_s)
+
+
+SKEW_COUNT_KEYS = ('pairs_skew_compensated', 'pairs_without_skew', 'pairs_without_previous',
+                   'features_moving', 'features_untracked', 'rejected_skew_range')
+
+
+class SkewCompensator:
+    """
+    Correct each pair's disparities for its camera skew, frame after frame (one left frame kept).
+
+    ``correct`` is called once per pair, in order, with the pair's rectified left image, the
+    left acquisition time and the skew (``t_right - t_left``; None when the pair does not say):
+    it measures the features' motion against the previous left image (when it is at most
+    ``max_period_s`` older), corrects their disparities, re-triangulates, drops matches the
+    correction takes outside the admissible disparities, and remembers the image. Counts of
+    every case accumulate in ``counts``.
+    """
+
+    def __init__(self, max_period_s=0.25):
+        self.max_period_s = max_period_s
+        self.previous = None
+        self.previous_time = None
+        self.counts = dict.fromkeys(SKEW_COUNT_KEYS, 0)
+
+    def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None):
+        """Return ``result`` with skew-corrected disparities and points (or unchanged)."""
+        previous, previous_time = self.previous, self.previous_time
+        self.previous, self.previous_time = np.asarray(left), left_time_s
+        if skew_s is None:
+            self.counts['pairs_without_skew'] += 1
+            return result
+        period = None if previous_time is None else left_time_s - previous_time
+        if previous is None or previous.shape != np.shape(left) or not period or \
+                not 0.0 < period <= self.max_period_s:
+            self.counts['pairs_without_previous'] += 1
+            return result
+        self.counts['pairs_skew_compensated'] += 1
+        if not len(result) or skew_s == 0.0:
+            return result
+        motion = feature_motion(previous, left, result.x_left, result.y, period)
+        self.counts['features_moving'] += int(motion.moving.sum())
+        self.counts['features_untracked'] += int((~motion.tracked).sum())
+        if not motion.moving.any():
+            return result
+        disparity = skew_corrected_disparity(result.disparity, motion.velocity_x, skew_s)
+        keep = np.ones(len(disparity), dtype=bool)
+        if bounds is not None:
+            keep = (disparity >= bounds[0]) & (disparity <= bounds[1])
+            self.counts['rejected_skew_range'] += int((~keep).sum())
+        points = triangulate(model, result.x_left[keep], result.y[keep], disparity[keep]) \
+            if model is not None else None
+        fields = {name: getattr(result, name)[keep] for name in
+                  ('x_left', 'y', 'similarity', 'poc_peak', 'confidence')
+                  if getattr(result, name) is not None}
+        return dataclasses.replace(result, disparity=disparity[keep], points=points, **fields)
