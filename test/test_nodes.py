@@ -75,9 +75,10 @@ def test_simulated_rig_end_to_end(ros):
     spin_until(executor, lambda: False, 1.5)          # drain the last pair and diagnostics
     clouds = collector.clouds
     assert len(clouds) >= 30, f'{len(clouds)} point clouds'
-    stamps = np.array([c.header.stamp.sec + c.header.stamp.nanosec * 1e-9 for c in clouds])
-    steady = stamps[len(stamps) // 4:]
-    assert (len(steady) - 1) / (steady[-1] - steady[0]) >= 8.0     # pairs lost in transit
+    # No pair lost in transit (behaviour, not a rate: the machine may be loaded; the rate is
+    # measured by st-stereo rig-bench and the strict rig tests).
+    assert len({(c.header.stamp.sec, c.header.stamp.nanosec) for c in clouds}) >= \
+        driver.published - 1
     depths = [np.nanmedian(point_cloud_array(c)[:, 2]) for c in clouds]
     assert np.median(depths) == pytest.approx(3.5, rel=0.01)
     first = clouds[0]
