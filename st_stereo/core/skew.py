@@ -18,6 +18,7 @@ correction at all, so a static scene keeps exactly the same disparities.
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 from st_stereo.core.triangulation import triangulate
@@ -31,18 +32,6 @@ class FeatureMotion:
     moving: np.ndarray          # bool: a correction applies
     tracked: np.ndarray         # bool: the window could be tracked (inside, NCC >= min_ncc)
     ncc: np.ndarray             # best NCC of the track (nan where untracked)
-
-
-def _windows(image, y, x, half):
-    size = 2 * half + 1
-    blocks = np.lib.stride_tricks.sliding_window_view(image, (size, size))
-    return blocks[y - half, x - half]
-
-
-def _zero_mean_unit(windows):
-    centred = windows - windows.mean(axis=(1, 2), keepdims=True)
-    norm = np.sqrt((centred ** 2).sum(axis=(1, 2), keepdims=True))
-    return centred / np.maximum(norm, 1e-12)
 
 
 def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
@@ -95,24 +84,18 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
     index = np.flatnonzero(inside)
     if len(index):
         xi, yi = x[index] + reach_x, y[index] + reach_y
-        reference = _zero_mean_unit(_windows(current, yi, xi, half))
         offsets_x = np.arange(-search_x - 1, search_x + 2)
         offsets_y = np.arange(-search_y, search_y + 1)
-        # NCC at every offset at once: the (zero-mean, unit) template against the previous
-        # frame's windows (the template's zero mean makes their mean drop out); their norms
-        # come from box sums over the whole frame.
-        size = 2 * half + 1
-        region_y = yi[:, None] + np.arange(-search_y - half, search_y + half + 1)[None, :]
-        region_x = xi[:, None] + np.arange(-search_x - 1 - half, search_x + 2 + half)[None, :]
-        regions = previous[region_y[:, :, None], region_x[:, None, :]]
-        views = np.lib.stride_tricks.sliding_window_view(regions, (size, size), axis=(1, 2))
-        products = np.einsum('nabij,nij->nab', views, reference, optimize=True)
-        blocks = np.lib.stride_tricks.sliding_window_view(previous, (size, size))
-        sums, squares = blocks.sum(axis=(2, 3)), (blocks ** 2).sum(axis=(2, 3))
-        norms = np.sqrt(np.maximum(squares - sums ** 2 / size ** 2, 0.0))
-        top = yi[:, None, None] + offsets_y[None, :, None] - half
-        leftmost = xi[:, None, None] + offsets_x[None, None, :] - half
-        ncc = products / np.maximum(norms[top, leftmost], 1e-12)
+        # Zero-mean NCC of each feature's window against the previous frame at every offset
+        # (OpenCV's TM_CCOEFF_NORMED, one small search region per feature).
+        current32, previous32 = current.astype(np.float32), previous.astype(np.float32)
+        ncc = np.empty((len(index), len(offsets_y), len(offsets_x)))
+        for k, (fy, fx) in enumerate(zip(yi.tolist(), xi.tolist())):
+            template = current32[fy - half:fy + half + 1, fx - half:fx + half + 1]
+            region = previous32[fy - half - search_y:fy + half + search_y + 1,
+                                fx - half - search_x - 1:fx + half + search_x + 2]
+            ncc[k] = cv2.matchTemplate(region, template, cv2.TM_CCOEFF_NORMED)
+        ncc = np.nan_to_num(ncc, nan=-1.0)        # a flat window correlates with nothing
         # The best integer offset within the search range (the outer columns only serve the
         # parabola), then the sub-pixel column.
         inner = ncc[:, :, 1:-1]

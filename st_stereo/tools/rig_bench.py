@@ -170,7 +170,8 @@ def _hold_the_gil(stop):
     return total
 
 
-def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process'):
+def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process',
+            max_pair_delta=None):
     """
     Run the driver (``layout='driver'``) or driver + rectifier + matcher (``'suite'``).
 
@@ -192,8 +193,9 @@ def run_rig(seconds, layout='driver', bufsiz=4096, warmup_s=3.0, reader='process
         rclpy.init(context=context)
         executor = SingleThreadedExecutor(context=context)
         subscriber = _subscriber_class()(context)
+        extra = {} if max_pair_delta is None else {'max_pair_delta': max_pair_delta}
         driver = DriverNode(context=context, parameter_overrides=spi_parameters(
-            rig, spi_reader=reader))
+            rig, spi_reader=reader, **extra))
         nodes = [subscriber, driver]
         matcher = None
         if layout.startswith('suite'):
@@ -311,7 +313,8 @@ def command_rig_bench(args):
     for reader in args.readers.split(','):
         for bufsiz in [int(b) for b in args.bufsiz.split(',')]:
             for layout in args.layouts.split(','):
-                rows.append(run_rig(args.seconds, layout, bufsiz, reader=reader))
+                rows.append(run_rig(args.seconds, layout, bufsiz, reader=reader,
+                                    max_pair_delta=args.max_pair_delta))
                 print(f'[rig-bench] reader {reader}, {layout}, bufsiz {bufsiz}: '
                       f'{rows[-1]["pairs /s"]:.2f} pairs/s', flush=True)
     print(f'\n## The driver on the emulated rig ({args.seconds:g} s each, after 3 s of start-up)')
@@ -405,6 +408,8 @@ def add_parser(sub):
                         'driver, camera phases sliding through the whole period)')
     p.add_argument('--readers', default='process,thread',
                    help="the driver's spi_reader modes to run, comma separated")
+    p.add_argument('--max-pair-delta', type=float, default=None,
+                   help="the driver's max_pair_delta, seconds (default: the driver's default)")
     p.add_argument('--crc-rate', type=float, default=0.05,
                    help='CRC faults per core frame for the CRC-policy comparison (0 = skip)')
     p.set_defaults(handler=command_rig_bench)
