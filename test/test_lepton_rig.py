@@ -271,14 +271,16 @@ def test_lepton_driver_on_purethermal_publishes_every_unique_frame_once(monkeypa
 @pytest.mark.timeout(180)
 def test_drifting_cameras_pair_within_max_pair_delta_and_count_the_rest():
     # Clocks 6000 ppm apart: their phase slides through the whole 113.6 ms period in 19 s
-    # (real Leptons take tens of minutes), so skews from 0 to 56.8 ms all occur: no pair has a
-    # true skew over max_pair_delta (50 ms), and the frames beyond it (12 % of a full slide)
-    # are dropped and counted, never paired with the wrong partner.
+    # (real Leptons take tens of minutes), so skews from 0 to 56.8 ms all occur: with
+    # max_pair_delta 50 ms (the default is 60, which pairs every frame) no pair has a true skew
+    # over it, and the frames beyond it (12 % of a full slide) are dropped and counted, never
+    # paired with the wrong partner.
     from st_stereo.tools.rig_bench import rig_configs
     with RigEmulator(rig_configs(4096, sweep=True)) as rig, rig.installed(), \
             ros_nodes() as (context, executor, add):
         subscriber = add(RigSubscriber(context))
-        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(rig)))
+        driver = add(DriverNode(context=context, parameter_overrides=spi_parameters(
+            rig, max_pair_delta=0.05)))
         start, end = run_driver(executor, driver)
         sent = rig.collect()
         # Strict: no pair's true skew beyond max_pair_delta plus the stamps' own error.

@@ -9,10 +9,11 @@ DRIVER_PARAMETERS = [
     ('bag', '', 'bag: rosbag2 directory holding left/image_raw and right/image_raw'),
     ('telemetry', 'off', 'camera telemetry rows: off, header or footer (a capture says its '
      'own, or it is detected from its data)'),
-    ('max_pair_delta', 0.05, 'largest difference of the two acquisition times of a stereo '
+    ('max_pair_delta', 0.06, 'largest difference of the two acquisition times of a stereo '
      'pair, seconds: two free-running Leptons drift through every phase, so their frames are '
-     'up to half a unique-frame period (56.8 ms) apart; with 0.05 about 12 % of the time has '
-     'no pair (see docs/lepton.md)'),
+     'up to half a unique-frame period (56.8 ms) apart; 0.06 pairs every frame (the matcher '
+     'corrects the skew of moving features, docs/skew.md); 0.05 gives no pair 12 % of the '
+     'time (see docs/lepton.md)'),
     ('duration', 0.0, 'stop after this many seconds of stream (0 = until the source ends)'),
     ('sim_depth', 3.5, 'sim: depth of the textured plane the cameras see, metres'),
     ('sim_texture', '', 'sim: texture image (empty = a shared thermal frame)'),
