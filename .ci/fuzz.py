@@ -38,6 +38,8 @@ MAX_LEN = {'vospi': 12000, 'capture': 12000, 'calibration': 8192, 'bag_metadata'
 # is PyYAML's: fuzzed through our loader, not instrumented, which would make it 4x slower).
 INSTRUMENT = {'vospi': ['st_stereo'], 'capture': ['st_stereo'], 'calibration': ['st_stereo'],
               'bag_metadata': ['st_stereo', 'rosbags.rosbag2']}
+EAGER_IMPORTS = {'bag_metadata': ['rosbags.rosbag2', 'rosbags.rosbag2.metadata',
+                                  'rosbags.rosbag2.storage_mcap']}
 
 
 # --- seeds ----------------------------------------------------------------------------------
@@ -146,7 +148,12 @@ def bag_metadata_target():
 
 def child(target, libfuzzer_args):
     import atheris
+    import importlib
     with atheris.instrument_imports(include=INSTRUMENT[target]):
+        # Modules the code under test imports lazily (inside functions) are imported here, so
+        # that they are instrumented too.
+        for module in EAGER_IMPORTS.get(target, ()):
+            importlib.import_module(module)
         one = globals()[f'{target}_target']()
     atheris.Setup([sys.argv[0]] + libfuzzer_args, one)
     atheris.Fuzz()

@@ -41,6 +41,8 @@ def open_bag(path):
         raise BagError(f'{metadata}: {_one_line(error)}') from None
     for connection in reader.connections:
         try:
+            if not isinstance(connection.topic, str) or not connection.topic:
+                raise ValueError(f'expected a topic name, got {connection.topic!r}')
             normalized_msgtype(connection.msgtype)
         except ValueError as error:
             reader.close()
@@ -102,6 +104,9 @@ def normalized_msgtype(msgtype):
 
     ValueError for anything else.
     """
+    if not isinstance(msgtype, str):      # e.g. a number in a damaged metadata.yaml
+        raise ValueError(f'message type {msgtype!r}: expected pkg/msg/Name or pkg/Name, got '
+                         f'a {type(msgtype).__name__}')
     parts = msgtype.split('/')
     if len(parts) == 2 and all(parts):
         return f'{parts[0]}/msg/{parts[1]}'

@@ -360,3 +360,23 @@ def test_raw_pair_recorded_with_message_compression_replays_through_the_suite(tm
     assert published == sum(len(m) for m in messages.values())
     assert len(compressed_clouds) >= 10
     assert compressed_clouds == plain_clouds
+
+
+@pytest.mark.parametrize('old, new, message', [
+    ('type: sensor_msgs/msg/Image', 'type: 15862068966', 'message type 15862068966: expected'),
+    ('name: /stereo/left/image_raw', 'name: 42', 'expected a topic name, got 42')])
+def test_a_number_where_metadata_needs_a_name_is_a_bag_error(tmp_path, old, new, message):
+    # Found by .ci/fuzz.py (bag_metadata): a number as a topic's type was an AttributeError.
+    import shutil
+    from st_stereo.bag_reading import BagError, open_bag
+    source = pathlib.Path(__file__).resolve().parents[1] / 'data' / 'recordings' / 'office' / \
+        'bag'
+    bag = tmp_path / 'bag'
+    shutil.copytree(source, bag)
+    metadata = bag / 'metadata.yaml'
+    text = metadata.read_text()
+    assert old in text
+    metadata.write_text(text.replace(old, new, 1))
+    with pytest.raises(BagError, match=message) as error:
+        open_bag(bag)
+    assert str(error.value).startswith(str(metadata))
