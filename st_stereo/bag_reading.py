@@ -39,15 +39,50 @@ def open_bag(path):
         reader.open()
     except Exception as error:      # noqa: B902 - rosbags and its YAML parser raise many kinds
         raise BagError(f'{metadata}: {_one_line(error)}') from None
+    problem = _metadata_shape_problem(metadata) if path.is_dir() else None
+    if problem:
+        _close_quietly(reader)
+        raise BagError(f'{metadata}: {problem}')
     for connection in reader.connections:
         try:
             if not isinstance(connection.topic, str) or not connection.topic:
                 raise ValueError(f'expected a topic name, got {connection.topic!r}')
             normalized_msgtype(connection.msgtype)
         except ValueError as error:
-            reader.close()
+            _close_quietly(reader)
             raise BagError(f'{metadata}: topic {connection.topic}: {error}') from None
     return reader
+
+
+# Fields rosbags (0.11) takes as they are: a damaged metadata.yaml can make ``files`` a string
+# that opens but breaks ``Reader.close`` (AttributeError; found by .ci/fuzz.py).
+_LIST_FIELDS = ('relative_file_paths', 'files', 'topics_with_message_count')
+
+
+def _metadata_shape_problem(metadata):
+    """Return what is wrong with the shape of a metadata.yaml rosbags opened, or None."""
+    import yaml
+    try:
+        document = yaml.safe_load(pathlib.Path(metadata).read_text(encoding='utf-8'))
+        info = document['rosbag2_bagfile_information']
+    except Exception:               # noqa: B902 - rosbags read it; a difference is no shape
+        return None
+    if not isinstance(info, dict):
+        return None
+    for field in _LIST_FIELDS:
+        value = info.get(field)
+        if value is not None and not isinstance(value, list):
+            return f'field {field}: expected a list, got {type(value).__name__} {value!r:.40}'
+        if field == 'files' and value and not all(isinstance(item, dict) for item in value):
+            return 'field files: expected a list of mappings (path, starting_time, ...)'
+    return None
+
+
+def _close_quietly(reader):
+    try:
+        reader.close()
+    except Exception:               # noqa: B902 - the bag is refused anyway; closing is cleanup
+        pass
 
 
 _DEFINITIONS_QUERY = 'FROM message_definitions'

@@ -380,3 +380,21 @@ def test_a_number_where_metadata_needs_a_name_is_a_bag_error(tmp_path, old, new,
     with pytest.raises(BagError, match=message) as error:
         open_bag(bag)
     assert str(error.value).startswith(str(metadata))
+
+
+def test_metadata_fields_of_the_wrong_shape_are_a_bag_error(tmp_path):
+    # Found by .ci/fuzz.py (bag_metadata, after 375k inputs): a 'files' entry that is a string
+    # opened in rosbags and then broke Reader.close with an AttributeError.
+    import shutil
+    import yaml
+    from st_stereo.bag_reading import BagError, open_bag
+    source = pathlib.Path(__file__).resolve().parents[1] / 'data' / 'recordings' / 'office' / \
+        'bag'
+    bag = tmp_path / 'bag'
+    shutil.copytree(source, bag)
+    metadata = bag / 'metadata.yaml'
+    document = yaml.safe_load(metadata.read_text())
+    document['rosbag2_bagfile_information']['files'] = 'not a list'
+    metadata.write_text(yaml.safe_dump(document))
+    with pytest.raises(BagError, match='field files: expected a list, got str'):
+        open_bag(bag)

@@ -124,7 +124,8 @@ class STConfig:
     skew_compensation: bool = _field(True, 'correct the disparities of moving features for '
                                      'the camera skew of the pair (t_right - t_left, from '
                                      'pair_info) by their image velocity on the left camera; '
-                                     'static features are never changed (docs/skew.md)')
+                                     'a feature whose window did not change beyond the noise '
+                                     'is not touched (docs/skew.md)')
 
     def __post_init__(self):
         """Validate every field against its metadata."""

@@ -24,6 +24,9 @@ import numpy as np
 from st_stereo.core.triangulation import triangulate
 
 
+NOISE_PERCENTILE = 5.0      # of the frame difference's local spread: the noise level
+
+
 @dataclasses.dataclass
 class FeatureMotion:
     """Horizontal image velocity of each feature, from the left camera's previous frame."""
@@ -35,7 +38,7 @@ class FeatureMotion:
 
 
 def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
-                   min_ncc=0.5, static_px=0.25):
+                   min_ncc=0.5, static_px=0.25, change_noise=2.0):
     """
     Measure each feature's horizontal image velocity between two left frames.
 
@@ -55,6 +58,12 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         A track whose best zero-mean NCC is below this is not trusted (no correction).
     static_px : float
         A feature whose displacement between the frames is below this is static.
+    change_noise : float
+        A feature is static unless the standard deviation of the frame difference over its
+        window exceeds this many times the noise level (the 5th percentile of that standard
+        deviation over the frame; about 0.87 sigma for pure noise). Pure noise over 81 pixels
+        exceeds 1.74 sigma with a probability far below 1e-15 (chi-square, 80 degrees of
+        freedom), so a static scene keeps every disparity exactly.
 
     Returns
     -------
@@ -72,10 +81,24 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
     rows, cols = current.shape
     half = window // 2
     reach_x, reach_y = half + search_x + 1, half + search_y
+    # How much each window changed between the frames: the spread of the frame difference
+    # over the window, against the noise level, taken as a low percentile of that spread over
+    # the whole frame (its flattest or static parts: sensor noise alone). A window that did
+    # not change beyond the noise has not moved, whatever its track says.
+    size = 2 * half + 1
+    difference = current - previous
+    mean = cv2.boxFilter(difference, -1, (size, size), borderType=cv2.BORDER_REPLICATE)
+    mean_square = cv2.boxFilter(difference ** 2, -1, (size, size),
+                                borderType=cv2.BORDER_REPLICATE)
+    spread_map = np.sqrt(np.maximum(mean_square - mean ** 2, 0.0))
+    noise = max(float(np.percentile(spread_map, NOISE_PERCENTILE)), 1e-9)
     # Windows may leave the image: both frames are extended by edge replication (a feature
-    # near the border is still tracked, on the part of its window inside the image).
-    current = np.pad(current, ((reach_y, reach_y), (reach_x, reach_x)), mode='edge')
-    previous = np.pad(previous, ((reach_y, reach_y), (reach_x, reach_x)), mode='edge')
+    # near the border is still tracked, on the part of its window inside the image). Raw
+    # 14-bit counts sit near 8000 with a texture of a few counts: the frame means are taken
+    # off before the float32 NCC, or float32 rounding swamps the texture.
+    pad = ((reach_y, reach_y), (reach_x, reach_x))
+    current = np.pad(current - current.mean(), pad, mode='edge')
+    previous = np.pad(previous - previous.mean(), pad, mode='edge')
     inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
     velocity = np.zeros(n)
     moving = np.zeros(n, dtype=bool)
@@ -111,8 +134,14 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
                                                                    curvature, -1.0), 0.0)
         # The feature was at x + offset in the previous frame: it moved by -(offset).
         shift = -(offsets_x[col] + np.clip(sub, -0.5, 0.5))
-        good = peak >= min_ncc
-        static = (offsets_x[col] == 0) & (offsets_y[row] == 0) & (np.abs(shift) < static_px)
+        # A peak on the edge of the search range may lie beyond it: not a track (along x the
+        # outer columns tell; along y there are none).
+        beyond_x = (np.abs(offsets_x[col]) == search_x) & \
+            (np.maximum(left_value, right_value) > peak)
+        good = (peak >= min_ncc) & ~beyond_x & (np.abs(offsets_y[row]) < search_y)
+        changed = spread_map[y[index], x[index]] > change_noise * noise
+        static = ~changed | ((offsets_x[col] == 0) & (offsets_y[row] == 0) &
+                             (np.abs(shift) < static_px))
         tracked[index] = good
         best_ncc[index] = peak
         moves = good & ~static
@@ -140,7 +169,8 @@ class SkewCompensator:
     Correct each pair's disparities for its camera skew, frame after frame (one left frame kept).
 
     ``correct`` is called once per pair, in order, with the pair's rectified left image, the
-    left acquisition time and the skew (``t_right - t_left``; None when the pair does not say):
+    left acquisition time and the skew (``t_right - t_left``; both None when the pair does not
+    say, and then the next pair has no previous time either):
     it measures the features' motion against the previous left image (when it is at most
     ``max_period_s`` older), corrects their disparities, re-triangulates, drops matches the
     correction takes outside the admissible disparities, and remembers the image. Counts of
@@ -157,7 +187,7 @@ class SkewCompensator:
         """Return ``result`` with skew-corrected disparities and points (or unchanged)."""
         previous, previous_time = self.previous, self.previous_time
         self.previous, self.previous_time = np.asarray(left), left_time_s
-        if skew_s is None:
+        if skew_s is None or left_time_s is None:
             self.counts['pairs_without_skew'] += 1
             return result
         period = None if previous_time is None else left_time_s - previous_time

@@ -20,6 +20,7 @@ Frames come back through a pipe; the child's counters are mirrored every half se
 
 import dataclasses
 import multiprocessing
+import signal
 import threading
 import time
 
@@ -210,8 +211,6 @@ def open_purethermal_camera(serial, video_device, counters=None):
 
 def _stream_process_main(name, arguments, connection):
     """Entry point of a camera's reader process: a CameraStream, frames sent to the parent."""
-    import signal
-
     from st_stereo.lepton.assembler import LeptonCounters
     # Ctrl-C and a service stop reach the whole process group: the parent stops this process
     # (or its pipe closes when the parent dies), so a shutdown never looks like a crash.
@@ -298,7 +297,15 @@ class ProcessCameraStream:
 
     def start(self):
         """Start the reader process and the thread that receives its frames."""
-        self._process.start()
+        # Ctrl-C reaches the whole process group, also a reader process still importing (a
+        # loaded machine: a KeyboardInterrupt traceback out of the spawn bootstrap): it is
+        # spawned with SIGINT and SIGTERM blocked, which it inherits across exec, before its
+        # own handlers ignore them.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            self._process.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         # The child has its copy: this one closed, the child's exit reaches recv as EOF.
         self._child_connection.close()
         self._thread.start()

@@ -86,8 +86,10 @@ class MatcherNode(Node):
 
     def _compensate_skew(self, result, left, header, model, bounds):
         stamp = (header.stamp.sec, header.stamp.nanosec)
-        left_time, skew = self.pair_times.pop(
-            stamp, (header.stamp.sec + header.stamp.nanosec * 1e-9, None))
+        # Without its pair_info a pair has neither a skew nor a left acquisition time (the
+        # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
+        # usable previous time either.
+        left_time, skew = self.pair_times.pop(stamp, (None, None))
         return self.skew.correct(result, left, left_time, skew, model, bounds)
 
     def _on_pair(self, left_msg, right_msg, left_info, right_info):

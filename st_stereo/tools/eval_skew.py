@@ -120,19 +120,32 @@ def skew_table(records, min_speed=0.0):
 
 
 def speed_table(records):
-    """Markdown table by the person's image speed: median error per condition, all skews."""
+    """
+    Markdown table by the person's image speed: median error and median |error|.
+
+    Signed medians of people walking either way partly cancel; the median of the absolute
+    error does not.
+    """
     lines = ['| head speed (px/s) | skew (ms) | matches | median, skewed | median, compensated '
-             '| median, synchronized |', '|---|---:|---:|---:|---:|---:|']
+             '| median, synchronized | median abs, skewed | median abs, compensated | median '
+             'abs, synchronized |', '|---|---:|---:|---:|---:|---:|---:|---:|---:|']
     for low, high in SPEED_BINS:
         def pick(skew, condition):
             return [r['error'][(r['speed'] >= low) & (r['speed'] < high)] for r in records
                     if r['skew_ms'] == skew and r['condition'] == condition]
+
+        def median_abs(errors):
+            errors = np.concatenate(errors) if errors else np.zeros(0)
+            return float(np.median(np.abs(errors))) if len(errors) else float('nan')
         _, median0, _ = _stats(pick(0.0, 'synchronized'))
+        abs0 = median_abs(pick(0.0, 'synchronized'))
         for skew in sorted({r['skew_ms'] for r in records if r['skew_ms'] != 0.0}):
             n, median, _ = _stats(pick(skew, 'skewed'))
             _, median_c, _ = _stats(pick(skew, 'compensated'))
             lines.append(f'| {low:.0f}-{high:.0f} | {skew:+.0f} | {n} | {median:+.3f} | '
-                         f'{median_c:+.3f} | {median0:+.3f} |')
+                         f'{median_c:+.3f} | {median0:+.3f} | '
+                         f'{median_abs(pick(skew, "skewed")):.3f} | '
+                         f'{median_abs(pick(skew, "compensated")):.3f} | {abs0:.3f} |')
     return '\n'.join(lines)
 
 
