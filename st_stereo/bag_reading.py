@@ -22,6 +22,10 @@ One place for ``bag_play``, the driver's ``source:=bag`` and ``st-stereo calibra
 
 import importlib
 import pathlib
+import re
+
+
+_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')     # a package, msg/srv/action, or a type
 
 
 class BagError(ValueError):
@@ -143,10 +147,9 @@ def normalized_msgtype(msgtype):
         raise ValueError(f'message type {msgtype!r}: expected pkg/msg/Name or pkg/Name, got '
                          f'a {type(msgtype).__name__}')
     parts = msgtype.split('/')
-    if len(parts) == 2 and all(parts):
-        return f'{parts[0]}/msg/{parts[1]}'
-    if len(parts) == 3 and all(parts):
-        return msgtype
+    # Each part a name (found by .ci/fuzz.py: '.pkg/msg/X' was a relative import, TypeError).
+    if len(parts) in (2, 3) and all(_NAME.fullmatch(part) for part in parts):
+        return msgtype if len(parts) == 3 else f'{parts[0]}/msg/{parts[1]}'
     raise ValueError(f'message type {msgtype!r}: expected pkg/msg/Name or pkg/Name')
 
 

@@ -364,7 +364,10 @@ def test_raw_pair_recorded_with_message_compression_replays_through_the_suite(tm
 
 @pytest.mark.parametrize('old, new, message', [
     ('type: sensor_msgs/msg/Image', 'type: 15862068966', 'message type 15862068966: expected'),
-    ('name: /stereo/left/image_raw', 'name: 42', 'expected a topic name, got 42')])
+    ('name: /stereo/left/image_raw', 'name: 42', 'expected a topic name, got 42'),
+    # Found by .ci/fuzz.py after 978,516 inputs: a relative-import TypeError.
+    ('type: sensor_msgs/msg/Image', 'type: .sensor_msgs/msg/Image',
+     "message type '.sensor_msgs/msg/Image': expected")])
 def test_a_number_where_metadata_needs_a_name_is_a_bag_error(tmp_path, old, new, message):
     # Found by .ci/fuzz.py (bag_metadata): a number as a topic's type was an AttributeError.
     import shutil
