@@ -272,11 +272,13 @@ def command_eval_points(args):
     config = config_from_assignments(args.set)
     sequences = [name for name in args.sequences.split(',') if name]
     recording = None if args.no_recording else bundled_recording()
-    report = eval_points.evaluate(config=config, stride=args.stride, sequences=sequences,
-                                  recording=recording, max_frames=args.max_frames,
-                                  log=None if args.quiet else
-                                  lambda line: print(line, file=sys.stderr))
+    report, motion = eval_points.evaluate(
+        config=config, stride=args.stride, sequences=sequences, recording=recording,
+        max_frames=args.max_frames,
+        log=None if args.quiet else lambda line: print(line, file=sys.stderr))
     print(eval_points.markdown_report(report))
+    print()
+    print(eval_points.markdown_motion_report(motion))
     failed = [row for row in eval_points.checks(report) if not row[4]]
     for name, label, value, target, met in eval_points.checks(report):
         print(f'{name}: {label}: {100 * value:.2f} % (target {target}): '

@@ -150,3 +150,53 @@ class PairSynchronizer:
         self.queues['left'].clear()
         self.queues['right'].clear()
         return dropped
+
+
+# --- pair_info: what a pair says about its two acquisitions -------------------------------------
+# The driver publishes them as the KeyValues of a diagnostic_msgs/DiagnosticArray on
+# ``pair_info`` (stamped with the pair's stamp); recordings carry the same topic, the matcher
+# reads the skew and the left acquisition time back.
+SKEW_KEY = 'skew (ms)'
+
+
+def stamp_text(stamp_s):
+    """Render seconds as ROS ``sec.nanosec`` text (nine digits of nanoseconds)."""
+    total_ns = int(round(stamp_s * 1e9))
+    sec, nanosec = divmod(total_ns, 1_000_000_000)
+    return f'{sec}.{nanosec:09d}'
+
+
+def pair_info_values(skew_s, stamps_s, frame_indices, ffc):
+    """
+    Return the ordered key -> value dict of one pair's ``pair_info``.
+
+    ``stamps_s``, ``frame_indices`` and ``ffc`` are (left, right): each camera's acquisition
+    stamp (seconds on the pair's clock), unique-frame index and FFC flag.
+    """
+    values = {SKEW_KEY: round(1e3 * skew_s, 3)}
+    for side, stamp, index, in_ffc in zip(('left', 'right'), stamps_s, frame_indices, ffc):
+        values[f'{side} acquisition stamp'] = stamp_text(stamp)
+        values[f'{side} frame index'] = index
+        values[f'{side} ffc'] = bool(in_ffc)
+    return values
+
+
+def pair_times_from_values(values):
+    """
+    Return ``(left acquisition time s, skew s)`` from ``pair_info`` key -> value text.
+
+    Raises ValueError naming the key when one is missing or is not a number.
+    """
+    out = []
+    for key, scale in (('left acquisition stamp', 1.0), (SKEW_KEY, 1e-3)):
+        if key not in values:
+            raise ValueError(f'pair_info: no {key!r} value (keys: {sorted(values)})')
+        try:
+            number = float(values[key])
+        except ValueError:
+            raise ValueError(f'pair_info: {key!r} is {values[key]!r}, expected a number') \
+                from None
+        if not math.isfinite(number):
+            raise ValueError(f'pair_info: {key!r} is {values[key]!r}, expected a finite number')
+        out.append(number * scale)
+    return tuple(out)

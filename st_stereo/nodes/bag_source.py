@@ -1,9 +1,12 @@
 """The driver's ``bag`` source: the raw image topics of a rosbag2 as two frame streams."""
 
+import bisect
+
 from st_stereo.lepton.assembler import LeptonCounters
+from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.lepton.reader import EndOfStream, LeptonFrame
 from st_stereo.nodes.conversions import msg_to_image
-from st_stereo.tools.bag_images import raw_image_messages
+from st_stereo.tools.bag_images import raw_image_messages, recorded_pair_info
 
 
 class _BagTime:
@@ -54,3 +57,42 @@ def open_bag_sides(path):
     for side, stamp_ns, msg in raw_image_messages(path):
         streams[side].append((stamp_ns * 1e-9, msg))
     return [BagSide(f'{side}/image_raw', streams[side]) for side in ('left', 'right')]
+
+
+class RecordedPairInfo:
+    """
+    A bag's ``pair_info`` by pair stamp, for republishing with the replayed pairs.
+
+    A recorded pair's images share its stamp (the midpoint of the two acquisitions), so pairing
+    them again gives a skew of zero: the cameras' real skew and acquisition stamps are only in
+    the recorded ``pair_info``. ``values`` looks a pair stamp up (within a microsecond: replay
+    passes stamps through float seconds) and counts what it found.
+    """
+
+    TOLERANCE_NS = 1000
+
+    def __init__(self, path):
+        self.by_stamp = recorded_pair_info(path)
+        self.stamps = sorted(self.by_stamp)
+        self.counts = {'pairs with recorded pair_info': 0,
+                       'pairs without recorded pair_info (skew of the image stamps)': 0,
+                       'recorded pair_info unreadable (skew of the image stamps)': 0}
+        self.last_problem = ''
+
+    def values(self, stamp_ns):
+        """Return the recorded key -> value text of the pair at ``stamp_ns``, or None."""
+        index = bisect.bisect_left(self.stamps, stamp_ns)
+        near = [s for s in self.stamps[max(0, index - 1):index + 1]
+                if abs(s - stamp_ns) <= self.TOLERANCE_NS]
+        if not near:
+            self.counts['pairs without recorded pair_info (skew of the image stamps)'] += 1
+            return None
+        values = self.by_stamp[near[0]]
+        try:
+            pair_times_from_values(values)
+        except ValueError as error:
+            self.counts['recorded pair_info unreadable (skew of the image stamps)'] += 1
+            self.last_problem = f'pair at {near[0]} ns: {error}'
+            return None
+        self.counts['pairs with recorded pair_info'] += 1
+        return values

@@ -38,7 +38,7 @@ from sensor_msgs.srv import SetCameraInfo
 from st_stereo.core.camera_calibration import load_calibration, save_calibration
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError
-from st_stereo.lepton.pairing import PairSynchronizer
+from st_stereo.lepton.pairing import pair_info_values, PairSynchronizer, SKEW_KEY
 from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
@@ -119,6 +119,7 @@ class DriverNode(Node):
         self.inexact_drops = [0, 0]
         self._lost_reported = [0, 0]
         self.ffc_pairs = 0
+        self.recorded_pair_info = None     # source bag: what the bag's pair_info topic says
         self.published = 0
         self.last_telemetry = [None, None]
         self.finished = threading.Event()
@@ -185,7 +186,9 @@ class DriverNode(Node):
                 readers.append(reader)
             return readers, [None, None]
         if self.source == 'bag':
-            from st_stereo.nodes.bag_source import open_bag_sides
+            from st_stereo.nodes.bag_source import open_bag_sides, RecordedPairInfo
+            # Images of a recorded pair share its stamp: the skew is only in its pair_info.
+            self.recorded_pair_info = RecordedPairInfo(self._value('bag'))
             return open_bag_sides(self._value('bag')), [None, None]
         raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
                          f'{self.source!r}')
@@ -335,11 +338,11 @@ class DriverNode(Node):
                 calibration = self.calibrations[index]
             self.info_pubs[index].publish(conversions.camera_info_from_calibration(
                 calibration, header_side))
-        self._publish_pair_info(pair, header, live, clock_start, base)
+        skew = self._publish_pair_info(pair, header, live, clock_start, base)
         self.published += 1
         now = time.time()
         self.frequency.tick(time.monotonic())
-        self.recent_skews.append(pair.skew)
+        self.recent_skews.append(skew)
         # Wall time each stamp went out (bag stamps are not wall time): for latency monitors.
         self.publish_wall_times[(header.stamp.sec, header.stamp.nanosec)] = now
         while len(self.publish_wall_times) > 256:
@@ -347,19 +350,27 @@ class DriverNode(Node):
 
     def _publish_pair_info(self, pair, header, live, clock_start, base):
         ffc = [bool(pair.left.ffc_in_progress), bool(pair.right.ffc_in_progress)]
+        values = None
+        if self.recorded_pair_info is not None:
+            # A bag's pair: republish what the driver that recorded it said (its skew), or say
+            # that the bag did not have it (the skew of the image stamps is then all there is).
+            values = self.recorded_pair_info.values(header.stamp.sec * 1_000_000_000 +
+                                                    header.stamp.nanosec)
+            if values is not None:
+                ffc = [values.get(f'{side} ffc') == 'True' for side in SIDES]
+        if values is None:
+            values = pair_info_values(
+                pair.skew, [self._to_stamp_s(frame.stamp, live, clock_start, base)
+                            for frame in (pair.left, pair.right)],
+                [pair.left.index, pair.right.index], ffc)
         self.ffc_pairs += any(ffc)
-        values = {'skew (ms)': round(1e3 * pair.skew, 3)}
-        for side, frame, in_ffc in zip(SIDES, (pair.left, pair.right), ffc):
-            stamp = _stamp_msg(self._to_stamp_s(frame.stamp, live, clock_start, base))
-            values[f'{side} acquisition stamp'] = f'{stamp.sec}.{stamp.nanosec:09d}'
-            values[f'{side} frame index'] = frame.index
-            values[f'{side} ffc'] = in_ffc
         level = diagnostics.WARN if any(ffc) else diagnostics.OK
         message = 'a camera is in FFC (frozen or about to freeze)' if any(ffc) else 'ok'
         array = DiagnosticArray(header=header)
         array.status = [diagnostics.status(f'{self.get_name()}: stereo pair', self.source,
                                            level, message, values)]
         self.pair_info_pub.publish(array)
+        return float(values[SKEW_KEY]) * 1e-3
 
     # --- services ---------------------------------------------------------------------------
     def _ffc_actions(self):
@@ -445,6 +456,10 @@ class DriverNode(Node):
             sum(self.inexact_drops)
         if self.live:
             values['frames dropped (handover queue full)'] = sum(self.queue_drops)
+        if self.recorded_pair_info is not None:
+            values.update(self.recorded_pair_info.counts)
+            if self.recorded_pair_info.last_problem:
+                values['recorded pair_info: last problem'] = self.recorded_pair_info.last_problem
         if self.last_error:
             level, summary = diagnostics.ERROR, self.last_error
         return diagnostics.status(f'{self.get_name()}: stereo pairs', self.source, level,

@@ -18,6 +18,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.skew import SkewCompensator
 from st_stereo.core.triangulation import StereoModel
+from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
@@ -35,6 +36,13 @@ def data_mask(msg, image):
     stretched) 0 is a real value, and float images carry no such marker: all pixels count.
     """
     return image != 0 if msg.encoding == 'mono16' else None
+
+
+PAIR_INFO_WAIT_S = 0.1
+
+
+def _stamp_key(msg):
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec)
 
 
 class MatcherNode(Node):
@@ -60,7 +68,15 @@ class MatcherNode(Node):
         self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info, RELIABLE)
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
-        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0}
+        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0,
+                       'pair_info_unreadable': 0, 'waited_for_pair_info': 0}
+        self.last_pair_info_problem = ''
+        # A pair whose pair_info has not arrived yet (another topic: an executor may deliver
+        # it after the images) waits for it, at most PAIR_INFO_WAIT_S, once pair_info has been
+        # seen at all (a driver without it never makes a pair wait).
+        self.pair_info_seen = False
+        self._waiting = None         # (monotonic arrival, the pair's four messages)
+        self.create_timer(0.02, self._release_stale_pair)
         self.last_error = ''
         self.last_result = None
         self.latencies = []
@@ -76,13 +92,29 @@ class MatcherNode(Node):
     def _on_pair_info(self, msg):
         values = {item.key: item.value for status in msg.status for item in status.values}
         try:
-            left_time = float(values['left acquisition stamp'])
-            skew = float(values['skew (ms)']) * 1e-3
-        except (KeyError, ValueError):
+            left_time, skew = pair_times_from_values(values)
+        except ValueError as error:
+            # Counted and named: that pair is matched without skew compensation.
+            self.counts['pair_info_unreadable'] += 1
+            self.last_pair_info_problem = str(error)
             return
-        self.pair_times[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (left_time, skew)
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        self.pair_times[stamp] = (left_time, skew)
+        self.pair_info_seen = True
         while len(self.pair_times) > 64:
             self.pair_times.pop(next(iter(self.pair_times)))
+        if self._waiting is not None and _stamp_key(self._waiting[1][0]) == stamp:
+            self._release_waiting()
+
+    def _release_waiting(self):
+        if self._waiting is not None:
+            messages, self._waiting = self._waiting[1], None
+            self._match_pair(*messages)
+
+    def _release_stale_pair(self):
+        if self._waiting is not None and \
+                time.monotonic() - self._waiting[0] > PAIR_INFO_WAIT_S:
+            self._release_waiting()       # matched without skew compensation (counted)
 
     def _compensate_skew(self, result, left, header, model, bounds):
         stamp = (header.stamp.sec, header.stamp.nanosec)
@@ -94,6 +126,16 @@ class MatcherNode(Node):
 
     def _on_pair(self, left_msg, right_msg, left_info, right_info):
         self.counts['pairs'] += 1
+        messages = (left_msg, right_msg, left_info, right_info)
+        self._release_waiting()           # an older pair goes first, with what it has
+        if self.config.skew_compensation and self.pair_info_seen and \
+                _stamp_key(left_msg) not in self.pair_times:
+            self.counts['waited_for_pair_info'] += 1
+            self._waiting = (time.monotonic(), messages)
+            return
+        self._match_pair(*messages)
+
+    def _match_pair(self, left_msg, right_msg, left_info, right_info):
         try:
             left = conversions.msg_to_image(left_msg)
             right = conversions.msg_to_image(right_msg)
@@ -142,6 +184,9 @@ class MatcherNode(Node):
         values.update({f'pairs {k}': v for k, v in self.counts.items()})
         values['pairs dropped by sync (left, right, left info, right info)'] = \
             ', '.join(map(str, self.sync.dropped))
+        if self.last_pair_info_problem:
+            values['pair_info: last problem (pair matched without skew compensation)'] = \
+                self.last_pair_info_problem
         if self.latencies:
             values['latency median (ms)'] = round(1e3 * float(np.median(self.latencies)), 2)
         result = self.last_result

@@ -164,12 +164,13 @@ def print_truth_comparison(monitor, truth, matcher):
     """Score every received point against a recording's ground truth, per surface."""
     from st_stereo.core.triangulation import project
     from st_stereo.sim.recording import frame_truth
-    from st_stereo.sim.scoring import PointTally, score_points
+    from st_stereo.sim.scoring import MotionTally, people_disparity_errors, PointTally, \
+        score_points
     model = matcher.matcher.model
     if model is None:
         return
     stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
-    tally = PointTally()
+    tally, motion = PointTally(), MotionTally()
     for stamp, points in monitor.clouds.items():
         # Replayed stamps go through float seconds: match within a microsecond.
         index = int(np.argmin(np.abs(stamps - stamp)))
@@ -177,7 +178,13 @@ def print_truth_comparison(monitor, truth, matcher):
             continue
         points = np.asarray(points, dtype=np.float64)[:, :3]
         u, v, disparity = project(model, points)
-        tally.add(score_points(model, frame_truth(truth, index), u, v, disparity, points))
+        one = frame_truth(truth, index)
+        tally.add(score_points(model, one, u, v, disparity, points))
+        if 'heads_image_velocity' in truth:
+            motion.add(*people_disparity_errors(model, one, u, v, disparity,
+                                                truth['heads_image_velocity'][index]),
+                       1e-6 * (int(truth['right_stamp_ns'][index]) -
+                               int(truth['left_stamp_ns'][index])))
     if not tally.frames:
         print('  ground truth: no point cloud matched a ground-truth stamp')
         return
@@ -188,6 +195,17 @@ def print_truth_comparison(monitor, truth, matcher):
               f'{100 * row["outliers_3d"]:5.1f} %, median |dZ|/Z '
               f'{100 * row["relative_error_median"]:5.2f} %, correct per cloud '
               f'{row["correct_per_frame"]:6.1f}')
+    rows = motion.rows()
+    if rows:
+        print("  disparity error on people (the scene at the left camera's instant), by pair "
+              'skew and head speed in the image:')
+    for row in rows:
+        low, high = row['speed_px_s']
+        speed = 'all speeds' if (low, high) == (0.0, np.inf) else \
+            f'>= {low:.0f} px/s' if high == np.inf else f'{low:.0f}-{high:.0f} px/s'
+        print(f'    skew {row["skew_ms"][0]:+.0f} to {row["skew_ms"][1]:+.0f} ms, '
+              f'{speed:>11}: {row["matches"]:6d} matches, median {row["median"]:+.3f} px, '
+              f'median abs {row["median_abs"]:.3f} px, p90 abs {row["p90_abs"]:.3f} px')
 
 
 def print_summary(driver, matcher, monitor, depth):
@@ -206,6 +224,15 @@ def print_summary(driver, matcher, monitor, depth):
               f'{np.median(latencies):.1f} ms, p99 {np.percentile(latencies, 99):.1f} ms')
     if monitor.matches:
         print(f'  matches per pair: median {np.median(monitor.matches):.0f}')
+    skews = sorted(abs(skew) for skew in driver.recent_skews)
+    if skews:
+        print(f'  pair skew (from pair_info): |skew| median {1e3 * skews[len(skews) // 2]:.1f} '
+              f'ms, max {1e3 * skews[-1]:.1f} ms (last {len(skews)} pairs)')
+    counts = matcher.skew.counts
+    print(f'  skew compensation: {counts["pairs_skew_compensated"]} pairs corrected, '
+          f'{counts["pairs_without_skew"]} without pair_info, '
+          f'{counts["pairs_without_previous"]} without a previous left frame; '
+          f'{counts["features_moving"]} moving features corrected')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
     for index, counters in enumerate(driver.camera_counters_list()):

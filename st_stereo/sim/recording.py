@@ -20,6 +20,8 @@ from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 
 from st_stereo.core.camera_calibration import load_calibration, save_calibration
+from st_stereo.core.rectification import StereoRectifier
+from st_stereo.lepton.pairing import pair_info_values
 
 START_NS = 1_764_000_000_000_000_000       # fixed, so a regenerated recording is identical
 TEXTURE_CREDITS = (
@@ -78,10 +80,14 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
     # What the driver will load: round-trip through the YAML, as a user's files would.
     calibrations = [load_calibration(out_dir / f'{side}.yaml') for side in ('left', 'right')]
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    truth_frames = {key: [] for key in ('stamp_ns', 'depth', 'disparity', 'disparity_min',
-                                        'disparity_max', 'labels', 'visible_right',
-                                        'heads_world', 'heads_rectified')}
+    fx = StereoRectifier(*calibrations).model.fx
+    truth_frames = {key: [] for key in ('stamp_ns', 'left_stamp_ns', 'right_stamp_ns', 'depth',
+                                        'disparity', 'disparity_min', 'disparity_max', 'labels',
+                                        'visible_right', 'heads_world', 'heads_rectified',
+                                        'heads_image_velocity')}
     namespace = namespace.rstrip('/')
+    pairs = spec.pair_times()
+    period = 1.0 / spec.fps
     with Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {}
         for side in ('left', 'right'):
@@ -89,11 +95,16 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
                                   ('camera_info', 'sensor_msgs/msg/CameraInfo')):
                 connections[side, name] = writer.add_connection(
                     f'{namespace}/{side}/{name}', msgtype, typestore=typestore)
+        connections['pair_info'] = writer.add_connection(
+            f'{namespace}/pair_info', 'diagnostic_msgs/msg/DiagnosticArray', typestore=typestore)
         builders = [_messages(typestore, f'stereo_{side}_optical_frame')
                     for side in ('left', 'right')]
-        for index, t in enumerate(spec.frame_times):
-            frame = renderer.frame(t)
-            stamp_ns = START_NS + int(round(t * 1e9))
+        for index, (t_left, t_right) in enumerate(pairs):
+            # Each camera at its own instant; both images of the pair carry the midpoint, as
+            # the driver stamps them, and pair_info says which instant each image shows.
+            frame = renderer.frame(t_left, right_t=t_right)
+            acquired_ns = [START_NS + int(round(t * 1e9)) for t in (t_left, t_right)]
+            stamp_ns = (acquired_ns[0] + acquired_ns[1]) // 2
             for side_index, side in enumerate(('left', 'right')):
                 image, camera_info = builders[side_index]
                 for name, msg in (('image_raw', image(frame[side], stamp_ns)),
@@ -101,8 +112,14 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
                                                               stamp_ns))):
                     writer.write(connections[side, name], stamp_ns,
                                  typestore.serialize_cdr(msg, msg.__msgtype__))
+            msg = _pair_info_message(typestore, stamp_ns, acquired_ns,
+                                     [int(round(t / period)) for t in (t_left, t_right)])
+            writer.write(connections['pair_info'], stamp_ns,
+                         typestore.serialize_cdr(msg, msg.__msgtype__))
             truth = frame['truth']
             truth_frames['stamp_ns'].append(stamp_ns)
+            truth_frames['left_stamp_ns'].append(acquired_ns[0])
+            truth_frames['right_stamp_ns'].append(acquired_ns[1])
             truth_frames['depth'].append(truth.depth.astype(np.float32))
             for key in ('disparity', 'disparity_min', 'disparity_max'):
                 truth_frames[key].append(getattr(truth, key).astype(np.float32))
@@ -110,15 +127,31 @@ def write_recording(renderer, out_dir, namespace='/stereo', progress=None, overw
             truth_frames['visible_right'].append(truth.visible_right)
             truth_frames['heads_world'].append(frame['heads_world'])
             truth_frames['heads_rectified'].append(frame['heads_rectified'])
+            truth_frames['heads_image_velocity'].append(renderer.head_image_velocity(t_left, fx))
             if progress is not None:
-                progress(index + 1, len(spec.frame_times))
+                progress(index + 1, len(pairs))
     arrays = {key: np.asarray(value) for key, value in truth_frames.items()}
     arrays['label_names'] = np.array(json.dumps(renderer.scene(0.0)[0].label_names))
     np.savez_compressed(out_dir / 'ground_truth.npz', **arrays)
     (out_dir / 'README.md').write_text(recording_readme(spec, namespace), encoding='utf-8')
     sizes = {path.name: path.stat().st_size for path in out_dir.rglob('*') if path.is_file()}
-    return {'frames': len(spec.frame_times), 'bytes': sum(sizes.values()), 'sizes': sizes,
+    return {'frames': len(pairs), 'bytes': sum(sizes.values()), 'sizes': sizes,
             'path': str(out_dir)}
+
+
+def _pair_info_message(typestore, stamp_ns, acquired_ns, frame_indices):
+    """Build the driver's ``pair_info`` of one recorded pair (the simulated FFC never freezes)."""
+    types = typestore.types
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    values = pair_info_values((acquired_ns[1] - acquired_ns[0]) * 1e-9,
+                              [t * 1e-9 for t in acquired_ns], frame_indices, (False, False))
+    status = types['diagnostic_msgs/msg/DiagnosticStatus'](
+        level=0, name='lepton_driver: stereo pair', message='ok',
+        hardware_id='sim', values=[types['diagnostic_msgs/msg/KeyValue'](key=k, value=str(v))
+                                   for k, v in values.items()])
+    header = types['std_msgs/msg/Header'](
+        stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id='')
+    return types['diagnostic_msgs/msg/DiagnosticArray'](header=header, status=[status])
 
 
 def write_pairs_bag(pairs, bag_dir, namespace='/stereo', fps=8.7, overwrite=False):
@@ -159,15 +192,24 @@ def recording_readme(spec, namespace):
         f'`st-stereo sim record --sequence {spec.name} --out <dir>`).\n\n'
         f'- `bag/`: rosbag2 (MCAP, metadata version 9): `{namespace}/left/image_raw`, '
         f'`{namespace}/left/camera_info`, `{namespace}/right/image_raw`, '
-        f'`{namespace}/right/camera_info`; mono16 14-bit counts; a pair shares one stamp.\n'
+        f'`{namespace}/right/camera_info`, `{namespace}/pair_info`; mono16 14-bit counts. '
+        f'The two cameras free-run: the right one exposes {abs(1e3 * spec.right_phase_s):.0f} '
+        f'ms {"after" if spec.right_phase_s >= 0 else "before"} the left one (its clock '
+        f'{spec.right_drift_ppm:+.0f} ppm), each image is '
+        'rendered at its own instant, both images of a pair carry the midpoint stamp (as the '
+        'driver stamps them) and `pair_info` (diagnostic_msgs/DiagnosticArray, as the driver '
+        'publishes it) gives both acquisition stamps and the skew.\n'
         f'- `left.yaml`, `right.yaml`: the true calibration (camera_calibration format); '
         f'distortion k1, k2 = {rig.distortion}, right camera misaligned by '
         f'{rig.misalignment_deg} deg (roll, pitch, yaw), baseline {rig.baseline_m:.4f} m, '
         f'fx B = {rig.fx_baseline:.3f} px m.\n'
-        f'- `ground_truth.npz`: per frame `stamp_ns`, `depth` (Z in the rectified left camera, '
-        'm), `disparity` (fx B / Z, px) with its range over each pixel area '
-        '(`disparity_min`, `disparity_max`), `labels` (see `label_names`), `visible_right`, '
-        '`heads_world` and `heads_rectified` (the head centre of each person, m).\n\n'
+        f'- `ground_truth.npz`: per pair `stamp_ns` (the pair stamp), `left_stamp_ns` and '
+        '`right_stamp_ns` (the instants the images show), `depth` (Z in the rectified left '
+        'camera at the left instant, m), `disparity` (fx B / Z, px) with its range over each '
+        'pixel area (`disparity_min`, `disparity_max`), `labels` (see `label_names`), '
+        '`visible_right`, '
+        '`heads_world` and `heads_rectified` (the head centre of each person, m) and '
+        '`heads_image_velocity` (its horizontal speed in the rectified left image, px/s).\n\n'
         f'{TEXTURE_CREDITS}\n')
 
 

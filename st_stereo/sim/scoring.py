@@ -190,3 +190,78 @@ def markdown_surface_table(rows):
             f'{100 * row["relative_error_median"]:.2f} % | '
             f'{100 * row["relative_error_p90"]:.2f} % | {row["correct_per_frame"]:.1f} |')
     return '\n'.join(lines)
+
+
+# --- disparity error on moving people, by camera skew and image speed ---------------------------
+SPEED_BINS_PX_S = ((0.0, 10.0), (10.0, 25.0), (25.0, np.inf))    # head speed in the image
+# Pair skew bins (ms), edges away from the simulated sequences' own skews (-45 .. +40 ms).
+SKEW_BINS_MS = ((-60.0, -50.0), (-50.0, -35.0), (-35.0, -25.0), (-25.0, -15.0), (-15.0, -5.0),
+                (-5.0, 5.0), (5.0, 15.0), (15.0, 25.0), (25.0, 35.0), (35.0, 50.0), (50.0, 60.0))
+
+
+def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds):
+    """
+    Signed disparity errors of the matches on people (visible to the right camera).
+
+    Returns ``(error, speed)``: the match's disparity less the principal-point offset minus the
+    true disparity at its left pixel (the scene at the left camera's instant), and the image
+    speed (px/s) of the person it lies on (``head_speeds[i]`` for label
+    ``PERSON_LABEL_BASE + i``).
+    """
+    rows, cols = truth.depth.shape
+    u = np.clip(np.rint(x_left).astype(int), 0, cols - 1)
+    v = np.clip(np.rint(y).astype(int), 0, rows - 1)
+    label = truth.labels[v, u]
+    on_person = (label >= PERSON_LABEL_BASE) & truth.visible_right[v, u]
+    own = np.asarray(disparity, dtype=np.float64) - model.disparity_offset
+    error = own - truth.disparity[v, u]
+    speeds = np.abs(np.asarray(head_speeds, dtype=np.float64))
+    person = label[on_person] - PERSON_LABEL_BASE
+    return error[on_person], speeds[person] if len(speeds) else np.zeros(len(person))
+
+
+@dataclasses.dataclass
+class MotionTally:
+    """People's disparity errors with their pair's skew (ms) and their image speed (px/s)."""
+
+    errors: list = dataclasses.field(default_factory=list)
+    speeds: list = dataclasses.field(default_factory=list)
+    skews: list = dataclasses.field(default_factory=list)
+
+    def add(self, errors, speeds, skew_ms):
+        """Add one pair's errors and speeds, taken at skew ``skew_ms``."""
+        self.errors.append(np.asarray(errors, dtype=np.float64))
+        self.speeds.append(np.asarray(speeds, dtype=np.float64))
+        self.skews.append(np.full(len(errors), float(skew_ms)))
+
+    def rows(self):
+        """One row per (skew bin, speed bin) holding matches: n, median, median and p90 |e|."""
+        if not self.errors:
+            return []
+        error, speed, skew = (np.concatenate(v) for v in (self.errors, self.speeds, self.skews))
+        out = []
+        for skew_low, skew_high in SKEW_BINS_MS:
+            for low, high in SPEED_BINS_PX_S + ((0.0, np.inf),):
+                pick = (skew >= skew_low) & (skew < skew_high) & (speed >= low) & (speed < high)
+                if not pick.any():
+                    continue
+                out.append({'skew_ms': (skew_low, skew_high), 'speed_px_s': (low, high),
+                            'matches': int(pick.sum()),
+                            'median': float(np.median(error[pick])),
+                            'median_abs': float(np.median(np.abs(error[pick]))),
+                            'p90_abs': float(np.percentile(np.abs(error[pick]), 90))})
+        return out
+
+
+def markdown_motion_table(rows):
+    """Markdown table of ``MotionTally.rows``."""
+    lines = ['| pair skew (ms) | head speed (px/s) | matches on people | median error (px) | '
+             'median abs (px) | p90 abs (px) |', '|---|---|---:|---:|---:|---:|']
+    for row in rows:
+        low, high = row['speed_px_s']
+        speed = 'all' if (low, high) == (0.0, np.inf) else \
+            f'>= {low:.0f}' if high == np.inf else f'{low:.0f}-{high:.0f}'
+        lines.append(f'| {row["skew_ms"][0]:+.0f} to {row["skew_ms"][1]:+.0f} | {speed} | '
+                     f'{row["matches"]} | {row["median"]:+.3f} | {row["median_abs"]:.3f} | '
+                     f'{row["p90_abs"]:.3f} |')
+    return '\n'.join(lines)

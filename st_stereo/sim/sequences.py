@@ -195,11 +195,46 @@ class SequenceSpec:
     rig: RigGeometry = RigGeometry()
     ffc_at_s: tuple = (60.0, 200.0)
     room: str = 'office'
+    # The two cameras free-run: the right one's first unique frame comes ``right_phase_s``
+    # after the left one's, and its clock runs ``right_drift_ppm`` faster (the rig emulator's
+    # cameras: +30 and -20 ppm). 0 and 0 is a synchronized rig.
+    right_phase_s: float = 0.0
+    right_drift_ppm: float = 0.0
 
     @property
     def frame_times(self):
-        """Acquisition times of the frames, seconds from the start."""
+        """Acquisition times of the left camera's frames, seconds from the start."""
         return np.arange(int(round(self.duration_s * self.fps))) / self.fps
+
+    def right_camera_times(self):
+        """Acquisition times of the right camera's unique frames over the sequence."""
+        period = 1.0 / (self.fps * (1.0 + 1e-6 * self.right_drift_ppm))
+        first = self.right_phase_s - period * math.ceil(self.right_phase_s / period)
+        count = int(math.ceil((self.duration_s + period - first) / period)) + 1
+        return first + period * np.arange(count)
+
+    def pair_times(self, max_pair_delta=0.06):
+        """
+        Acquisition times ``(left, right)`` of the pairs the driver makes, in order.
+
+        Both cameras' frames go through the driver's own pairing (``PairSynchronizer``,
+        nearest stamps one to one within ``max_pair_delta``, the driver's default): a left
+        frame without a right one that close makes no pair, as on the rig.
+        """
+        from st_stereo.lepton.pairing import PairSynchronizer
+        pairing = PairSynchronizer(max_pair_delta, min_period=0.1)
+        stream = sorted([(t, 'left') for t in self.frame_times] +
+                        [(t, 'right') for t in self.right_camera_times()])
+        pairs = []
+        for t, side in stream:
+            for pair in pairing.push(side, _Acquisition(float(t))):
+                pairs.append((pair.left.stamp, pair.right.stamp))
+        return pairs
+
+
+@dataclasses.dataclass(frozen=True)
+class _Acquisition:
+    stamp: float
 
 
 def _walker(path, look, start=0.0, speed=1.0, pause=0.0):
@@ -214,7 +249,12 @@ def _walker(path, look, start=0.0, speed=1.0, pause=0.0):
 
 
 def standard_sequences():
-    """Return the evaluation sequences (people 2.5-4.5 m from the rig) and the recording's."""
+    """
+    Return the evaluation sequences (people 2.5-4.5 m from the rig) and the recording's.
+
+    Each has its own camera phase (right camera 20-45 ms after or before the left one, drifting
+    by the rig emulator's 50 ppm): ``pair_times`` gives the instants each pair's images show.
+    """
     tall = people.PersonLook(height_m=1.80, seed=1)
     short = people.PersonLook(height_m=1.65, skin=34.0, top=30.0, trousers=27.5, seed=2)
     sitter = PersonScript((Keyframe(0.0, -1.4, 4.6), Keyframe(3.0, -0.6, 3.4),
@@ -225,21 +265,23 @@ def standard_sequences():
         'walk_across': SequenceSpec(
             'walk_across', 'one person walks across the room and back, 2.8-4.6 m away',
             (_walker([(-1.4, 2.6), (1.4, 2.6), (1.2, 3.8), (-1.4, 3.8)], tall, speed=1.1),),
-            duration_s=8.0, rig=realistic_rig()),
+            duration_s=8.0, rig=realistic_rig(), right_phase_s=0.040, right_drift_ppm=-50.0),
         'two_people': SequenceSpec(
             'two_people', 'one person walks diagonally past another who stands and turns',
             (_walker([(-1.3, 2.3), (1.0, 4.3)], tall, speed=0.9),
              PersonScript((Keyframe(0.0, 0.9, 2.8), Keyframe(8.0, 0.9, 2.8)), short,
                           heading_rad=math.pi * 0.8)),
-            duration_s=8.0, rig=realistic_rig()),
+            duration_s=8.0, rig=realistic_rig(), right_phase_s=-0.030, right_drift_ppm=-50.0),
         'sit_down': SequenceSpec(
             'sit_down', 'a person walks to a chair, sits, stands up and leaves',
-            (sitter,), duration_s=12.0, rig=realistic_rig()),
+            (sitter,), duration_s=12.0, rig=realistic_rig(), right_phase_s=0.020,
+            right_drift_ppm=-50.0),
         'office': SequenceSpec(
             'office', 'The bundled recording: one person walks around, one sits down',
             (_walker([(1.5, 2.2), (-1.0, 2.5), (-1.2, 4.0), (1.2, 3.9), (1.0, 2.4)], tall,
                      speed=0.9), sitter),
-            duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0)),
+            duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0), right_phase_s=0.033,
+            right_drift_ppm=-50.0),
         # Held out: never used to choose a parameter or a mechanism (docs/results.md).
         'meeting_room': SequenceSpec(
             'meeting_room', 'held out: another room, three people (two walk, one stands)',
@@ -249,7 +291,8 @@ def standard_sequences():
                           people.PersonLook(height_m=1.72, skin=33.5, top=29.0,
                                             trousers=28.0, seed=3),
                           heading_rad=-math.pi * 0.3)),
-            duration_s=8.0, rig=realistic_rig(), room='meeting_room'),
+            duration_s=8.0, rig=realistic_rig(), room='meeting_room', right_phase_s=-0.045,
+            right_drift_ppm=-50.0),
     }
 
 
@@ -310,6 +353,13 @@ class SequenceRenderer:
                 if with_truth else None,
                 'heads_world': heads, 'heads_rectified': self.spec.rig.to_rectified_left(heads),
                 'times': (t, right_t)}
+
+    def head_image_velocity(self, t, fx, dt=0.01):
+        """Horizontal velocity (px/s, signed) of each person's head in the rectified left image."""
+        def image_x(instant):
+            heads = self.spec.rig.to_rectified_left(self.scene(instant)[1])
+            return fx * heads[:, 0] / heads[:, 2]
+        return (image_x(t + dt) - image_x(t - dt)) / (2 * dt)
 
     def camera_frame(self, side, t):
         """Render one camera (``'left'`` or ``'right'``) alone at ``t`` (uint16 raw frame)."""

@@ -31,3 +31,34 @@ def raw_image_messages(path):
             yield wanted[connection.id], stamp, msg
     finally:
         reader.close()
+
+
+def recorded_pair_info(path):
+    """
+    Return ``{stamp_ns: {key: value}}`` of a bag's ``pair_info`` topic (empty without one).
+
+    The driver's ``pair_info`` (diagnostic_msgs/DiagnosticArray stamped with each pair's stamp)
+    carries both cameras' acquisition stamps and the pair's skew: a bag whose images share the
+    pair's stamp keeps the skew only there. Topics ending in ``pair_info`` of another type are
+    ignored.
+    """
+    from rosbags.typesys import get_typestore, Stores
+
+    from st_stereo.bag_reading import bag_messages, normalized_msgtype, open_bag
+    path = pathlib.Path(path)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    reader = open_bag(path)
+    out = {}
+    try:
+        connections = [c for c in reader.connections if c.topic.endswith('pair_info') and
+                       normalized_msgtype(c.msgtype) == 'diagnostic_msgs/msg/DiagnosticArray']
+        if not connections:
+            return out
+        for connection, _, data in bag_messages(reader, connections):
+            msg = typestore.deserialize_cdr(data, normalized_msgtype(connection.msgtype))
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            out[stamp] = {item.key: item.value for status in msg.status
+                          for item in status.values}
+    finally:
+        reader.close()
+    return out

@@ -20,34 +20,16 @@ from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import feature_motion, skew_corrected_disparity
-from st_stereo.sim.scoring import PERSON_LABEL_BASE
+from st_stereo.sim.scoring import people_disparity_errors, SPEED_BINS_PX_S as SPEED_BINS
 
 SKEWS_MS = (-55.0, -25.0, 10.0, 25.0, 40.0, 55.0)
-SPEED_BINS = ((0.0, 10.0), (10.0, 25.0), (25.0, np.inf))      # px/s of the person's head
 TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down')
 HELD_OUT_SEQUENCES = ('meeting_room',)
 
 
-def people_errors(model, truth, result, head_speeds):
-    """Signed disparity errors of the matches on people, their speeds and their indices."""
-    rows, cols = truth.depth.shape
-    u = np.clip(np.rint(result.x_left).astype(int), 0, cols - 1)
-    v = np.clip(np.rint(result.y).astype(int), 0, rows - 1)
-    label = truth.labels[v, u]
-    on_person = (label >= PERSON_LABEL_BASE) & truth.visible_right[v, u]
-    own = np.asarray(result.disparity, dtype=np.float64) - model.disparity_offset
-    error = own - truth.disparity[v, u]
-    speed = np.array([head_speeds[lab - PERSON_LABEL_BASE] if lab >= PERSON_LABEL_BASE
-                      else 0.0 for lab in label])
-    return error, speed, on_person
-
-
-def head_speeds_px(renderer, model, t, dt=0.01):
+def head_speeds_px(renderer, model, t):
     """Horizontal speed (px/s) of each person's head in the rectified left image at ``t``."""
-    def image_x(instant):
-        heads = renderer.spec.rig.to_rectified_left(renderer.scene(instant)[1])
-        return model.fx * heads[:, 0] / heads[:, 2]
-    return np.abs(image_x(t + dt) - image_x(t - dt)) / (2 * dt)
+    return np.abs(renderer.head_image_velocity(t, model.fx))
 
 
 def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames=None,
@@ -75,22 +57,23 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
                 renderer.camera_frame('right', t + skew_ms * 1e-3)
             left, right = rectifier.rectify(frame['left'], right_raw)
             result = matcher.match(left, right, **rectifier.valid_keywords())
-            error, speed, on_person = people_errors(model, frame['truth'], result, speeds)
+            error, speed = people_disparity_errors(model, frame['truth'], result.x_left,
+                                                   result.y, result.disparity, speeds)
             if skew_ms == 0.0:
                 records.append({'skew_ms': 0.0, 'condition': 'synchronized',
-                                'error': error[on_person], 'speed': speed[on_person]})
+                                'error': error, 'speed': speed})
                 continue
             tick = time.perf_counter()
             motion = feature_motion(previous, left, result.x_left, result.y, period)
             corrected = skew_corrected_disparity(result.disparity, motion.velocity_x,
                                                  skew_ms * 1e-3)
             elapsed_ms = 1e3 * (time.perf_counter() - tick)
-            corrected_error = error + (corrected - result.disparity)
+            corrected_error, _ = people_disparity_errors(model, frame['truth'], result.x_left,
+                                                         result.y, corrected, speeds)
             records.append({'skew_ms': skew_ms, 'condition': 'skewed',
-                            'error': error[on_person], 'speed': speed[on_person]})
+                            'error': error, 'speed': speed})
             records.append({'skew_ms': skew_ms, 'condition': 'compensated',
-                            'error': corrected_error[on_person], 'speed': speed[on_person],
-                            'moving': motion.moving[on_person], 'ms': elapsed_ms,
+                            'error': corrected_error, 'speed': speed, 'ms': elapsed_ms,
                             'matches': len(result)})
     return records
 

@@ -106,7 +106,7 @@ def run_all(out_path, quick=False, progress_factory=None, log=print):
     from st_stereo.tools import eval_points
     from st_stereo.tools.data import bundled_recording
     log('scoring every point per surface')
-    results['points'] = eval_points.evaluate(
+    results['points'], results['points_motion'] = eval_points.evaluate(
         stride=8 if quick else 2, recording=bundled_recording(),
         max_frames=4 if quick else None)
     eval_points.error_figure(figures / 'points_error.png')
@@ -243,6 +243,12 @@ textureless thermal surfaces.
 {scoring_doc()}
 
 {eval_points.markdown_report(results["points"])}
+
+Disparity error of the matches on people (what a moving person's points carry), by the pair's
+camera skew and the person's image speed; each sequence has its own camera phase, so its skew
+bin is its own:
+
+{eval_points.markdown_motion_report(results.get("points_motion") or {})}
 
 {points_before(figures)}
 
