@@ -16,6 +16,7 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/calibration', glob('config/calibration/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/data/textures', glob('data/textures/*')),
         ('share/' + package_name + '/data/recordings/office',
          [f for f in glob('data/recordings/office/*') if not f.endswith('bag')]),
         ('share/' + package_name + '/data/recordings/office/bag',

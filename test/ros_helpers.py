@@ -1,9 +1,16 @@
 """rclpy helpers shared by the tests that run nodes: a private context and spinning."""
 
+import contextlib
 import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from st_stereo.nodes.conversions import image_to_msg
+from std_msgs.msg import Header
 
 
 def new_context():
@@ -25,3 +32,99 @@ def spin_until_finished(executor, driver, timeout_s):
     deadline = time.monotonic() + timeout_s
     while not driver.finished.is_set() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
+
+
+@contextlib.contextmanager
+def ros_nodes():
+    """Yield a private rclpy context, its executor, and a function adding nodes to it."""
+    context, executor = new_context()
+    nodes = []
+
+    def add(node):
+        nodes.append(node)
+        executor.add_node(node)
+        return node
+    try:
+        yield context, executor, add
+    finally:
+        for node in reversed(nodes):
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def ideal_camera_info(tx, header=None, width=80, height=60):
+    """Return the CameraInfo of an ideal rectified Lepton camera (fx 83.9, P[0, 3] = ``tx``)."""
+    info = CameraInfo()
+    if header is not None:
+        info.header = header
+    info.width, info.height = width, height
+    info.k = [83.9, 0.0, 39.5, 0.0, 83.9, 29.5, 0.0, 0.0, 1.0]
+    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    info.d = [0.0] * 5
+    info.distortion_model = 'plumb_bob'
+    info.p = [83.9, 0.0, 39.5, tx, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return info
+
+
+class RectifiedPairs(Node):
+    """Publishes rectified pairs with the raw camera_infos, as the rectifier and driver do."""
+
+    def __init__(self, context, name='rectified_pairs'):
+        super().__init__(name, context=context, namespace='stereo')
+        sensor = qos_profile_sensor_data
+        self.images = [self.create_publisher(Image, f'{side}/image_rect', sensor)
+                       for side in ('left', 'right')]
+        self.infos = [self.create_publisher(CameraInfo, f'{side}/camera_info', sensor)
+                      for side in ('left', 'right')]
+
+    def publish_images(self, sec, left, right, info_size=(80, 60)):
+        """Publish a pair stamped ``sec`` s, camera_infos of ``info_size`` (width, height)."""
+        header = Header(frame_id='stereo_left_optical_frame')
+        header.stamp.sec = sec
+        for publisher, image in zip(self.images, (left, right)):
+            publisher.publish(image_to_msg(image, header))
+        for publisher, tx in zip(self.infos, (0.0, -46.3)):
+            publisher.publish(ideal_camera_info(tx, header, *info_size))
+
+
+class Clouds(Node):
+    """Collects ``points2``: the raw bytes of each cloud by its stamp."""
+
+    def __init__(self, context):
+        super().__init__('clouds', context=context, namespace='stereo')
+        self.by_stamp = {}
+        self.create_subscription(PointCloud2, 'points2', self._on_cloud,
+                                 qos_profile_sensor_data)
+
+    def _on_cloud(self, msg):
+        self.by_stamp[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = bytes(msg.data)
+
+
+def replay_through_matcher(bag, rate=0.5, use_sim_time=False):
+    """
+    Play ``bag`` (BagPlayer) into a rectifier and a matcher; return what came out.
+
+    With ``use_sim_time`` the player publishes ``/clock`` and the nodes run on it. Returns
+    ``(clouds {stamp: bytes}, messages published, the matcher node)``.
+    """
+    from st_stereo.nodes.bags import BagPlayer
+    from st_stereo.nodes.matcher_node import MatcherNode
+    from st_stereo.nodes.rectifier_node import RectifierNode
+    context, executor = new_context()
+    overrides = [Parameter('use_sim_time', value=use_sim_time)]
+    matcher = MatcherNode(context=context, parameter_overrides=overrides)
+    nodes = [RectifierNode(context=context, parameter_overrides=overrides), matcher,
+             Clouds(context)]
+    player = BagPlayer(bag, rate=rate, publish_clock=use_sim_time, context=context)
+    for node in nodes + [player]:
+        executor.add_node(node)
+    try:
+        spin_for(executor, 1.0)      # discovery
+        player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
+        spin_for(executor, 1.5)      # drain
+        return dict(nodes[2].by_stamp), player.published, matcher
+    finally:
+        player.close()
+        for node in nodes + [player]:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -8,13 +8,12 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import serialize_message
-from ros_helpers import new_context, spin_for, spin_until_finished
+from ros_helpers import Clouds, new_context, replay_through_matcher, spin_for, \
+    spin_until_finished
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
-from sensor_msgs.msg import PointCloud2
 from st_stereo.core.camera_calibration import load_calibration
 from st_stereo.core.fourier import fourier_shift_image_x
 from st_stereo.core.triangulation import StereoModel
@@ -30,33 +29,9 @@ CALIBRATION = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'calibrat
 RAW_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info', 'right/camera_info')
 
 
-class Clouds(Node):
-    def __init__(self, context):
-        super().__init__('clouds', context=context, namespace='stereo')
-        self.by_stamp = {}
-        self.create_subscription(PointCloud2, 'points2', self._on_cloud,
-                                 qos_profile_sensor_data)
-
-    def _on_cloud(self, msg):
-        self.by_stamp[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = bytes(msg.data)
-
-
 def replay(bag, rate=0.5):
-    context, executor = new_context()
-    nodes = [RectifierNode(context=context), MatcherNode(context=context), Clouds(context)]
-    player = BagPlayer(bag, rate=rate, context=context)
-    for node in nodes + [player]:
-        executor.add_node(node)
-    try:
-        spin_for(executor, 1.0)      # discovery
-        player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
-        spin_for(executor, 1.5)      # drain
-        return dict(nodes[2].by_stamp), player.published
-    finally:
-        player.close()
-        for node in nodes + [player]:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    clouds, published, _ = replay_through_matcher(bag, rate)
+    return clouds, published
 
 
 @pytest.mark.timeout(300)

@@ -165,7 +165,7 @@ def test_round_trip_through_the_driver_and_rectifier_nodes(circle_session):
     """Calibrate -> YAML -> driver (bag source) loads it -> rectifier node -> equal rows."""
     _, out, _ = circle_session
     context, executor = new_context()
-    urls = [Parameter(f'{side}_camera_info_url', value=f'file://{out}/result/{side}.yaml')
+    urls = [Parameter(f'{side}.camera_info_url', value=f'file://{out}/result/{side}.yaml')
             for side in ('left', 'right')]
     nodes = [RectifiedPairs(context), RectifierNode(context=context)]
     for node in nodes:

@@ -111,3 +111,12 @@ def test_readme_lists_every_parameter_as_the_code_defines_it():
     readme = (pathlib.Path(__file__).resolve().parents[1] / 'README.md').read_text()
     assert parameters_markdown() in readme, 'README parameter table is stale: regenerate ' \
         'it with `st-stereo params --markdown`'
+
+
+def test_readme_lists_every_node_parameter_as_the_nodes_declare_it():
+    import pathlib
+
+    from st_stereo.cli import node_parameters_markdown
+    readme = (pathlib.Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    assert node_parameters_markdown() in readme, 'README node parameter table is stale: ' \
+        'regenerate it with `st-stereo params --node-markdown`'

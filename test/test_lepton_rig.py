@@ -8,16 +8,14 @@ the production ``SpiTransport`` reads it through a FIFO with ``os.read`` and the
 rclpy; a subscriber checks every published image against what the cameras sent.
 """
 
-import contextlib
 import os
 import time
 
 import pytest
-import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rig_helpers import check_stream, STAMP_TOLERANCE_S
-from ros_helpers import new_context, spin_for
+from ros_helpers import ros_nodes, spin_for
 from st_stereo.lepton import spi
 from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
 from st_stereo.lepton.emulator import CameraConfig, RigEmulator, TimedScene
@@ -56,24 +54,6 @@ def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_PERIOD_S, wall_
         return check_stream(got, sent, min_rate, window, time.time() - time.monotonic(),
                             max_skew_s=max_skew_s + STAMP_TOLERANCE_S)
     return check_stream(got, sent, min_rate, window)
-
-
-@contextlib.contextmanager
-def ros_nodes():
-    """Yield a private rclpy context, its executor, and a function adding nodes to it."""
-    context, executor = new_context()
-    nodes = []
-
-    def add(node):
-        nodes.append(node)
-        executor.add_node(node)
-        return node
-    try:
-        yield context, executor, add
-    finally:
-        for node in reversed(nodes):
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def spin_with_events(executor, seconds, events=()):

@@ -10,12 +10,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from ros_helpers import ideal_camera_info, ros_nodes
+from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.camera_calibration import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
 from st_stereo.nodes.driver_node import DriverNode
@@ -28,19 +27,8 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 @pytest.fixture
 def ros():
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def add(node):
-        nodes.append(node)
-        executor.add_node(node)
-        return node
-    yield context, executor, add
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with ros_nodes() as nodes:
+        yield nodes
 
 
 class Collector(Node):
@@ -93,7 +81,8 @@ def test_simulated_rig_end_to_end(ros):
         assert key in camera
     matching = collector.statuses['matcher: ST matching']
     for key in ('features', 'matches', 'rejected_left_right', 'rejected_subpixel_range',
-                'time total (ms)', 'latency median (ms)', 'Actual frequency (Hz)'):
+                'time total (ms)', 'latency from stamp, node clock, median (ms)',
+                'time from arrival to points2, median (ms)', 'Actual frequency (Hz)'):
         assert key in matching
     # The driver's pair_info gives each pair's skew; the simulated plane does not move.
     assert int(matching['skew pairs_skew_compensated']) > 0
@@ -117,18 +106,11 @@ def test_invalid_calibration_names_file_and_field(ros, tmp_path):
     bad.write_text('image_width: 80\nimage_height: 60\ndistortion_model: plumb_bob\n')
     with pytest.raises(CalibrationError, match=f'{bad}: missing field .camera_matrix.'):
         DriverNode(context=context, parameter_overrides=[
-            Parameter('left_camera_info_url', value=f'file://{bad}')])
+            Parameter('left.camera_info_url', value=f'file://{bad}')])
 
 
 def _info(width, height, tx):
-    info = CameraInfo()
-    info.width, info.height = width, height
-    info.k = [83.9, 0.0, 39.5, 0.0, 83.9, 29.5, 0.0, 0.0, 1.0]
-    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    info.d = [0.0] * 5
-    info.distortion_model = 'plumb_bob'
-    info.p = [83.9, 0.0, 39.5, tx, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
-    return info
+    return ideal_camera_info(tx, width=width, height=height)
 
 
 def test_mismatched_image_and_info_are_dropped_counted_and_reported(ros):

@@ -14,18 +14,16 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+import ros_helpers
 from ros_helpers import new_context, spin_for, spin_until_finished
-from sensor_msgs.msg import CameraInfo, Image
 from st_stereo.lepton.pairing import pair_info_values, pair_times_from_values, stamp_text
 from st_stereo.nodes import diagnostics
-from st_stereo.nodes.conversions import image_to_msg
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.sim.recording import write_pairs_bag, write_recording
 from st_stereo.sim.scoring import MotionTally, people_disparity_errors
 from st_stereo.sim.sequences import SequenceRenderer, standard_sequences
-from std_msgs.msg import Header
 
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -123,38 +121,12 @@ def test_a_bag_without_pair_info_is_replayed_with_its_image_stamps_skew_and_coun
                if kv.key == 'skew (ms)')
 
 
-def _info(tx):
-    info = CameraInfo()
-    info.width, info.height = 80, 60
-    info.k = [83.9, 0.0, 39.5, 0.0, 83.9, 29.5, 0.0, 0.0, 1.0]
-    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    info.d = [0.0] * 5
-    info.distortion_model = 'plumb_bob'
-    info.p = [83.9, 0.0, 39.5, tx, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
-    return info
-
-
-class RectifiedPairs(Node):
-    """Publishes rectified pairs and their pair_info, as the rectifier and the driver do."""
+class RectifiedPairs(ros_helpers.RectifiedPairs):
+    """Rectified pairs and their pair_info, as the rectifier and the driver publish them."""
 
     def __init__(self, context):
-        super().__init__('rectified_pairs', context=context, namespace='stereo')
-        sensor = qos_profile_sensor_data
-        self.images = [self.create_publisher(Image, f'{side}/image_rect', sensor)
-                       for side in ('left', 'right')]
-        self.infos = [self.create_publisher(CameraInfo, f'{side}/camera_info_rect', sensor)
-                      for side in ('left', 'right')]
+        super().__init__(context)
         self.pair_info = self.create_publisher(DiagnosticArray, 'pair_info', RELIABLE)
-
-    def publish_images(self, sec, left, right):
-        header = Header(frame_id='stereo_left_optical_frame')
-        header.stamp.sec = sec
-        for publisher, image in zip(self.images, (left, right)):
-            publisher.publish(image_to_msg(image, header))
-        for publisher, tx in zip(self.infos, (0.0, -46.3)):
-            info = _info(tx)
-            info.header = header
-            publisher.publish(info)
 
     def publish_pair_info(self, sec, skew_s):
         array = DiagnosticArray()
@@ -170,7 +142,10 @@ class RectifiedPairs(Node):
 def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80x60):
     context, executor = new_context()
     source = RectifiedPairs(context)
-    matcher = MatcherNode(context=context)
+    # A generous wait: on a loaded machine the test's own 30 ms between images and pair_info
+    # can stretch; the behaviour checked is the waiting, not its length.
+    matcher = MatcherNode(context=context, parameter_overrides=[
+        Parameter('pair_info_wait', value=2.0)])
     texture = (7800 + (people_80x60 - people_80x60.min()) * 800 / np.ptp(people_80x60))
     left = texture.astype(np.uint16)
     right = np.roll(texture, -5, axis=1).astype(np.uint16)
@@ -196,13 +171,13 @@ def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80
             source.pair_info.publish(array)
             spin_for(executor, 0.5)
         source.publish_images(4, left, right)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 10.0
         while matcher.counts['matched'] < 4 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.02)
         assert matcher.counts['matched'] == 4
         counts = matcher.skew.counts
         # Pair 1 had no previous frame; pairs 2 and 3 waited for their pair_info and were
-        # compensated; pair 4 waited 0.1 s and was matched without (counted).
+        # compensated; pair 4 waited pair_info_wait and was matched without (counted).
         assert matcher.counts['waited_for_pair_info'] == 3
         assert counts['pairs_skew_compensated'] == 2
         assert counts['pairs_without_previous'] == 1

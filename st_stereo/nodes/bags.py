@@ -19,6 +19,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.utilities import remove_ros_args
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
@@ -201,8 +202,10 @@ def record_main(argv=None):
     parser.add_argument('topics', nargs='*', default=list(RAW_PAIR_TOPICS))
     parser.add_argument('--compression-mode', choices=COMPRESSION_MODES, default='none',
                         help='zstd-compress each message or each closed file (none)')
-    args, ros_args = parser.parse_known_args(argv)
-    rclpy.init(args=['bag_record', *ros_args] if ros_args else None)
+    # ROS arguments (``--ros-args ...``, which launch adds) go to rclpy, the rest to argparse.
+    full = ['bag_record', *(sys.argv[1:] if argv is None else argv)]
+    args = parser.parse_args(remove_ros_args(full)[1:])
+    rclpy.init(args=full)
     node = BagRecorder(args.output, args.topics, args.compression_mode)
     try:
         rclpy.spin(node)
@@ -224,8 +227,13 @@ def play_main(argv=None):
     parser.add_argument('--step', action='store_true',
                         help='publish one message per line read on standard input')
     parser.add_argument('--topics', nargs='*', help='only these topics')
-    args, ros_args = parser.parse_known_args(argv)
-    rclpy.init(args=['bag_play', *ros_args] if ros_args else None)
+    parser.add_argument('--delay', type=float, default=0.5,
+                        help='seconds to wait before the first message, for subscribers to '
+                             'connect (a launch file starting everything at once: a few)')
+    # ROS arguments (``--ros-args ...``, which launch adds) go to rclpy, the rest to argparse.
+    full = ['bag_play', *(sys.argv[1:] if argv is None else argv)]
+    args = parser.parse_args(remove_ros_args(full)[1:])
+    rclpy.init(args=full)
     try:
         node = BagPlayer(args.bag, args.rate, args.clock, args.topics)
     except (BagError, OSError, ValueError) as error:
@@ -239,7 +247,7 @@ def play_main(argv=None):
         if not node.publishers_by_id:
             print(f'bag_play: {args.bag}: no topic can be played', file=sys.stderr)
             return 1
-        time.sleep(0.5)      # let subscribers discover the publishers
+        time.sleep(max(0.0, args.delay))      # let subscribers discover the publishers
         step = (lambda: sys.stdin.readline()) if args.step else None
         count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s), step=step)
         print(f'published {count} messages from {args.bag}')

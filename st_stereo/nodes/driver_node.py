@@ -22,14 +22,12 @@ one thread.
 """
 
 import collections
-import os
-import pathlib
 import queue
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -42,7 +40,10 @@ from st_stereo.lepton.pairing import pair_info_values, PairSynchronizer, SKEW_KE
 from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
-from st_stereo.nodes.driver_parameters import DRIVER_PARAMETERS, SIDES
+from st_stereo.nodes.node_parameters import DEPRECATED_DRIVER_PARAMETERS, DRIVER_PARAMETERS, \
+    SIDES
+from st_stereo.nodes.package_urls import resolve_url
+from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -52,32 +53,13 @@ UNIQUE_HZ = 26.4 / 3
 LIVE_SOURCES = ('spi', 'purethermal')
 
 
-def resolve_url(url):
-    """Path of a ``file://`` or ``package://PACKAGE/relative`` camera_info URL."""
-    if url.startswith('file://'):
-        return url[len('file://'):]
-    if url.startswith('package://'):
-        package, _, relative = url[len('package://'):].partition('/')
-        try:
-            from ament_index_python.packages import (get_package_share_directory,
-                                                     PackageNotFoundError)
-            return os.path.join(get_package_share_directory(package), relative)
-        except (ImportError, LookupError, OSError, PackageNotFoundError):
-            if package != 'st_stereo':
-                raise ValueError(f'{url}: package {package!r} not found (is its workspace '
-                                 f'sourced?)') from None
-            # Not installed through ament (a pip / editable install): the source tree.
-            return str(pathlib.Path(__file__).resolve().parents[2] / relative)
-    raise ValueError(f'camera_info URL {url!r}: expected file:// or package://')
-
-
 class DriverNode(Node):
     """Thin wrapper: Lepton readers + pairing -> image / camera_info messages."""
 
     def __init__(self, **kwargs):
         super().__init__('lepton_driver', **with_default_namespace(kwargs))
-        for name, default, description in DRIVER_PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        declare_node_parameters(self, DRIVER_PARAMETERS, DEPRECATED_DRIVER_PARAMETERS)
+        self.add_on_set_parameters_callback(self._on_parameters)
         value = self._value
         self.source = value('source')
         self.publish_wall_times = {}
@@ -90,8 +72,9 @@ class DriverNode(Node):
         devices = [value(f'{side}_device') for side in SIDES]
         buses = [value(f'{side}_i2c_bus') for side in SIDES]
         spi_hz = value('spi_hz')
-        self.info_urls = [value(f'{side}_camera_info_url') for side in SIDES]
-        self.frame_ids = [value(f'{side}_frame_id') for side in SIDES]
+        self.camera_names = [value(f'{side}.camera_name') for side in SIDES]
+        self.info_urls = [value(f'{side}.camera_info_url') for side in SIDES]
+        self.frame_ids = [value(f'{side}.frame_id') for side in SIDES]
         self.calibrations = [self._load_calibration(url) for url in self.info_urls]
         self.live = self.source in LIVE_SOURCES
         self.boot_timeout = value('boot_timeout')
@@ -146,6 +129,21 @@ class DriverNode(Node):
 
     def _value(self, name):
         return self.get_parameter(name).value
+
+    def _on_parameters(self, parameters):
+        # Read-only parameters never get here: rclpy refuses them first ("Trying to set a
+        # read-only parameter"; their descriptors' additional_constraints say why).
+        # max_pair_delta applies to the next pair.
+        for parameter in parameters:
+            if parameter.name == 'max_pair_delta':
+                if not 0.0 < parameter.value <= 0.1:
+                    return SetParametersResult(
+                        successful=False, reason=f'max_pair_delta: expected 0 < seconds <= '
+                                                 f'0.1, got {parameter.value!r}')
+        for parameter in parameters:
+            if parameter.name == 'max_pair_delta':
+                self.max_delta = self.pairing.max_delta = float(parameter.value)
+        return SetParametersResult(successful=True)
 
     def _load_calibration(self, url):
         path = resolve_url(url)
@@ -404,7 +402,7 @@ class DriverNode(Node):
         url = self.info_urls[index]
         try:
             calibration = conversions.calibration_from_camera_info(request.camera_info,
-                                                                   f'lepton_{SIDES[index]}')
+                                                                   self.camera_names[index])
             if (calibration.width, calibration.height) != (80, 60):
                 raise ValueError(f'camera_info is {calibration.width}x{calibration.height}, '
                                  f'the Lepton 2 is 80x60')
@@ -515,6 +513,11 @@ class DriverNode(Node):
         for camera_stream in self.streams or ():
             camera_stream.stop()
         self._thread.join(timeout=2.0)
+        if not self.live:
+            for reader in self.readers or ():
+                close = getattr(reader, 'close', None)     # captures hold open files
+                if close is not None:
+                    close()
         super().destroy_node()
 
 

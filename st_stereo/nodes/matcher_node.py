@@ -1,8 +1,10 @@
 """
 ``matcher``: ST on the rectified pair; publishes ``points2``, ``disparity``, diagnostics.
 
-Subscribes ``left/image_rect``, ``right/image_rect``, ``left/camera_info_rect``,
-``right/camera_info_rect`` (sensor-data QoS, exact stamp sync) and the driver's ``pair_info``
+Subscribes ``left/image_rect``, ``right/image_rect``, ``left/camera_info``, ``right/camera_info``
+(sensor-data QoS, exact stamp sync; as stereo_image_proc's disparity node: a raw camera_info's
+P is the rectified geometry, so any image_proc-style rectifier can feed it) and the driver's
+``pair_info``
 (both acquisition stamps of each pair: the camera skew, see ``st_stereo.core.skew``); every ST
 parameter is a ROS parameter with its range and can be changed live (validated by STConfig).
 """
@@ -11,6 +13,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -20,7 +24,9 @@ from st_stereo.core.skew import SkewCompensator
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics
-from st_stereo.nodes.parameters import declare_st_parameters, validate_changes
+from st_stereo.nodes.node_parameters import MATCHER_PARAMETERS
+from st_stereo.nodes.parameters import declare_node_parameters, declare_st_parameters, \
+    validate_changes
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact
 from stereo_msgs.msg import DisparityImage
@@ -38,7 +44,7 @@ def data_mask(msg, image):
     return image != 0 if msg.encoding == 'mono16' else None
 
 
-PAIR_INFO_WAIT_S = 0.1
+STAMP_LATENCY_PLAUSIBLE_S = 5.0     # a stamp older than this is not on the node's clock
 
 
 def _stamp_key(msg):
@@ -51,7 +57,7 @@ class MatcherNode(Node):
     def __init__(self, **kwargs):
         super().__init__('matcher', **with_default_namespace(kwargs))
         self.config = declare_st_parameters(self)
-        self.declare_parameter('target_frequency', 8.7)
+        declare_node_parameters(self, MATCHER_PARAMETERS)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.matcher = StereoMatcher(self.config)
         overriding = QoSOverridingOptions.with_default_policies()
@@ -61,7 +67,7 @@ class MatcherNode(Node):
                                                    qos_overriding_options=overriding)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         topics = [(Image, 'left/image_rect'), (Image, 'right/image_rect'),
-                  (CameraInfo, 'left/camera_info_rect'), (CameraInfo, 'right/camera_info_rect')]
+                  (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
         self.skew = SkewCompensator()
         self.pair_times = {}         # pair stamp -> (left acquisition time, skew), seconds
@@ -69,21 +75,42 @@ class MatcherNode(Node):
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0,
-                       'pair_info_unreadable': 0, 'waited_for_pair_info': 0}
+                       'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
+                       'stamps_not_on_node_clock': 0}
+        self.last_drop_reason = ''
+        self.processing_times = []
         self.last_pair_info_problem = ''
         # A pair whose pair_info has not arrived yet (another topic: an executor may deliver
-        # it after the images) waits for it, at most PAIR_INFO_WAIT_S, once pair_info has been
+        # it after the images) waits for it, at most pair_info_wait seconds, once it has been
         # seen at all (a driver without it never makes a pair wait).
+        self.pair_info_wait = self.get_parameter('pair_info_wait').value
         self.pair_info_seen = False
         self._waiting = None         # (monotonic arrival, the pair's four messages)
-        self.create_timer(0.02, self._release_stale_pair)
+        # On the steady clock: under use_sim_time a /clock that stops (a bag's end) must not
+        # keep the last pair waiting.
+        self.create_timer(0.02, self._release_stale_pair,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.last_error = ''
         self.last_result = None
         self.latencies = []
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _on_parameters(self, parameters):
+        for parameter in parameters:
+            if parameter.name in ('target_frequency', 'pair_info_wait'):
+                if not isinstance(parameter.value, (int, float)) or not parameter.value > 0:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'{parameter.name}: expected a number above 0, got '
+                               f'{parameter.value!r}')
         result, config = validate_changes(self.config, parameters)
+        if not result.successful:
+            return result
+        for parameter in parameters:
+            if parameter.name == 'target_frequency':
+                self.frequency.target_hz = float(parameter.value)
+            if parameter.name == 'pair_info_wait':
+                self.pair_info_wait = float(parameter.value)
         if config is not None:
             self.config = config
             self.matcher = StereoMatcher(config)
@@ -113,7 +140,7 @@ class MatcherNode(Node):
 
     def _release_stale_pair(self):
         if self._waiting is not None and \
-                time.monotonic() - self._waiting[0] > PAIR_INFO_WAIT_S:
+                time.monotonic() - self._waiting[0] > self.pair_info_wait:
             self._release_waiting()       # matched without skew compensation (counted)
 
     def _compensate_skew(self, result, left, header, model, bounds):
@@ -126,7 +153,7 @@ class MatcherNode(Node):
 
     def _on_pair(self, left_msg, right_msg, left_info, right_info):
         self.counts['pairs'] += 1
-        messages = (left_msg, right_msg, left_info, right_info)
+        messages = (left_msg, right_msg, left_info, right_info, time.monotonic())
         self._release_waiting()           # an older pair goes first, with what it has
         if self.config.skew_compensation and self.pair_info_seen and \
                 _stamp_key(left_msg) not in self.pair_times:
@@ -135,7 +162,7 @@ class MatcherNode(Node):
             return
         self._match_pair(*messages)
 
-    def _match_pair(self, left_msg, right_msg, left_info, right_info):
+    def _match_pair(self, left_msg, right_msg, left_info, right_info, arrival):
         try:
             left = conversions.msg_to_image(left_msg)
             right = conversions.msg_to_image(right_msg)
@@ -153,8 +180,9 @@ class MatcherNode(Node):
                                                matcher.disparity_bounds())
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
-            self.last_error = str(error)
+            self.last_error = self.last_drop_reason = str(error)
             return
+        self.last_error = ''              # the state is the latest pair's: a good one clears it
         header = left_msg.header
         points = result.points if result.points is not None else np.zeros((0, 3))
         intensity = left[result.y, result.x_left] if len(result) else np.zeros(0)
@@ -172,15 +200,21 @@ class MatcherNode(Node):
         self.counts['matched'] += 1
         if not len(result):
             self.counts['empty_clouds'] += 1
-        now = time.time()
-        self.frequency.tick(now)
-        stamp = header.stamp.sec + header.stamp.nanosec * 1e-9
-        self.latencies = (self.latencies + [now - stamp])[-50:]
+        done = time.monotonic()
+        self.frequency.tick(done)
+        self.processing_times = (self.processing_times + [done - arrival])[-50:]
+        # Latency from the stamp, on the node clock (sim time under use_sim_time): only where
+        # the stamp is on this clock (a bag replayed without /clock has old stamps).
+        latency = self.get_clock().now().nanoseconds * 1e-9 - \
+            (header.stamp.sec + header.stamp.nanosec * 1e-9)
+        if 0.0 <= latency <= STAMP_LATENCY_PLAUSIBLE_S:
+            self.latencies = (self.latencies + [latency])[-50:]
+        else:
+            self.counts['stamps_not_on_node_clock'] += 1
         self.last_result = result
 
     def _publish_diagnostics(self):
-        now = time.time()
-        level, summary, values = self.frequency.values(now)
+        level, summary, values = self.frequency.values(time.monotonic())
         values.update({f'pairs {k}': v for k, v in self.counts.items()})
         values['pairs dropped by sync (left, right, left info, right info)'] = \
             ', '.join(map(str, self.sync.dropped))
@@ -188,7 +222,13 @@ class MatcherNode(Node):
             values['pair_info: last problem (pair matched without skew compensation)'] = \
                 self.last_pair_info_problem
         if self.latencies:
-            values['latency median (ms)'] = round(1e3 * float(np.median(self.latencies)), 2)
+            values['latency from stamp, node clock, median (ms)'] = \
+                round(1e3 * float(np.median(self.latencies)), 2)
+        if self.processing_times:
+            values['time from arrival to points2, median (ms)'] = \
+                round(1e3 * float(np.median(self.processing_times)), 2)
+        if self.last_drop_reason:
+            values['last dropped pair'] = self.last_drop_reason
         result = self.last_result
         if result is not None:
             values.update(result.counts)
@@ -206,4 +246,4 @@ class MatcherNode(Node):
 
 def main(args=None):
     """Run the matcher node."""
-    spin_node(MatcherNode, args)
+    return spin_node(MatcherNode, args)

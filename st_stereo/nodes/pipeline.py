@@ -75,7 +75,7 @@ def default_recording():
     """Return the bundled recording (package share, or the source tree for a pip install)."""
     import pathlib
 
-    from st_stereo.nodes.driver_node import resolve_url
+    from st_stereo.nodes.package_urls import resolve_url
     return pathlib.Path(resolve_url('package://st_stereo/data/recordings/office/README.md')).parent
 
 
@@ -115,7 +115,7 @@ def run_suite(argv=None):
                              f'bag/ in it)')
         driver_overrides = [Parameter('source', value='bag'),
                             Parameter('bag', value=str(recording / 'bag'))] + [
-            Parameter(f'{side}_camera_info_url', value=f'file://{recording / side}.yaml')
+            Parameter(f'{side}.camera_info_url', value=f'file://{recording / side}.yaml')
             for side in ('left', 'right') if (recording / f'{side}.yaml').is_file()]
         if (recording / 'ground_truth.npz').is_file():
             truth = load_ground_truth(recording)

@@ -3,13 +3,15 @@
 
 Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``,
 ``right/camera_info`` (exact stamp sync); publishes ``left/image_rect``, ``right/image_rect``
-(mono16, 0 where a rectified pixel has no data) and the rectified camera_infos, each in
-its own camera's header (stamp and optical frame).
+(mono16, 0 where a rectified pixel has no data), each in its own camera's header (stamp and
+optical frame). As image_proc's rectify node, no new camera_info: consumers of ``image_rect``
+(the matcher, stereo_image_proc) pair it with the raw ``camera_info``, whose P is the
+rectified geometry. ``left/camera_info_rect`` and ``right/camera_info_rect`` (K = P[:3, :3],
+no distortion) are still published for one release, deprecated.
 """
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -18,6 +20,8 @@ from sensor_msgs.msg import CameraInfo, Image
 from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
+from st_stereo.nodes.node_parameters import RECTIFIER_PARAMETERS
+from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact
 
@@ -37,9 +41,7 @@ class RectifierNode(Node):
                                                 RELIABLE, qos_overriding_options=overriding)
                           for side in ('left', 'right')]
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.declare_parameter('publish_mono8', False, ParameterDescriptor(
-            description='also publish left/image_rect_mono8, right/image_rect_mono8: '
-                        'contrast-stretched 8-bit copies for viewers (1st-99th percentile)'))
+        declare_node_parameters(self, RECTIFIER_PARAMETERS)
         self.mono8_pubs = None
         if self.get_parameter('publish_mono8').value:
             self.mono8_pubs = [self.create_publisher(Image, f'{side}/image_rect_mono8',
@@ -52,6 +54,7 @@ class RectifierNode(Node):
         self._calibration_key = None
         self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0}
         self.last_error = ''
+        self.last_drop_reason = ''
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _rectifier_for(self, left_info, right_info):
@@ -72,8 +75,9 @@ class RectifierNode(Node):
                                             conversions.msg_to_image(right_msg, 'mono16'))
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
-            self.last_error = str(error)
+            self.last_error = self.last_drop_reason = str(error)
             return
+        self.last_error = ''              # the state is the latest pair's: a good one clears it
         # Each rectified stream keeps its camera's header (stamp and optical frame), as
         # image_proc does; pixels without data (outside the raw image) are 0.
         headers = (left_msg.header, right_msg.header)
@@ -91,6 +95,8 @@ class RectifierNode(Node):
         values = dict(self.counts)
         values['pairs dropped by sync (left, right, left info, right info)'] = \
             ', '.join(map(str, self.sync.dropped))
+        if self.last_drop_reason:
+            values['last dropped pair'] = self.last_drop_reason
         level, message = diagnostics.OK, 'rectifying'
         if self.last_error:
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
@@ -103,4 +109,4 @@ class RectifierNode(Node):
 
 def main(args=None):
     """Run the rectifier node."""
-    spin_node(RectifierNode, args)
+    return spin_node(RectifierNode, args)

@@ -20,9 +20,18 @@ def spin_node(factory, args=None):
 
     Returns the node's ``exit_code`` (0 when it has none): a node that shuts itself down
     because it cannot go on sets it, so the process exits non-zero and launch can respawn it.
+    A node that cannot start from its configuration (a parameter of the wrong type or out of
+    range, a calibration file missing or invalid: ValueError, OSError) is one line on standard
+    error naming the problem, and exit code 2.
     """
+    import sys
     rclpy.init(args=args)
-    node = factory()
+    try:
+        node = factory()
+    except (ValueError, OSError) as error:
+        print(f'{sys.argv[0].rsplit("/", 1)[-1]}: cannot start: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

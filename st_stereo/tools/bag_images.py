@@ -2,6 +2,8 @@
 
 import pathlib
 
+import numpy as np
+
 SIDES = ('left', 'right')
 
 
@@ -62,3 +64,59 @@ def recorded_pair_info(path):
     finally:
         reader.close()
     return out
+
+
+def recorded_calibrations(path):
+    """
+    Return the left and right CameraCalibration of a bag's first camera_info messages.
+
+    Topics ending in ``left/camera_info`` and ``right/camera_info``; a ValueError names what
+    the bag has when one is missing (a bag of image_raw alone has no calibration).
+    """
+    from rosbags.typesys import get_typestore, Stores
+
+    from st_stereo.bag_reading import bag_messages, normalized_msgtype, open_bag
+    from st_stereo.core.camera_calibration import CameraCalibration
+    path = pathlib.Path(path)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    reader = open_bag(path)
+    found = {}
+    try:
+        wanted = {c.id: side for c in reader.connections for side in SIDES
+                  if c.topic.endswith(f'{side}/camera_info') and
+                  normalized_msgtype(c.msgtype) == 'sensor_msgs/msg/CameraInfo'}
+        for connection, _, data in bag_messages(
+                reader, [c for c in reader.connections if c.id in wanted]):
+            side = wanted[connection.id]
+            if side not in found:
+                msg = typestore.deserialize_cdr(data, 'sensor_msgs/msg/CameraInfo')
+                found[side] = CameraCalibration(
+                    width=int(msg.width), height=int(msg.height), camera_name=side,
+                    camera_matrix=np.array(msg.k, dtype=float).reshape(3, 3),
+                    distortion_model=msg.distortion_model or 'plumb_bob',
+                    distortion=np.array(msg.d, dtype=float),
+                    rectification=np.array(msg.r, dtype=float).reshape(3, 3),
+                    projection=np.array(msg.p, dtype=float).reshape(3, 4))
+            if len(found) == 2:
+                break
+    finally:
+        reader.close()
+    missing = [side for side in SIDES if side not in found]
+    if missing:
+        raise ValueError(f'{path}: no {" or ".join(missing)}/camera_info message (topics: '
+                         f'{sorted(reader.topics)})')
+    return found['left'], found['right']
+
+
+def raw_pair_namespace(path):
+    """Return the namespace of a bag's ``left/image_raw`` topic (``/stereo`` for the suite's)."""
+    from st_stereo.bag_reading import open_bag
+    reader = open_bag(pathlib.Path(path))
+    try:
+        for connection in reader.connections:
+            if connection.topic.endswith('/left/image_raw'):
+                return connection.topic[:-len('/left/image_raw')] or '/'
+    finally:
+        reader.close()
+    raise ValueError(f'{path}: no topic ending in left/image_raw (topics: '
+                     f'{sorted(reader.topics)})')

@@ -28,14 +28,28 @@ def shared_frame(name=DEFAULT_FRAME):
     return shared_thermal_dir() / name
 
 
-def bundled_recording():
-    """Directory of the bundled recording: the package share, or the source tree."""
+PACKAGED_TEXTURE = 'people_lab_180x180.png'
+
+
+def _package_data(relative):
+    """Path of ``data/<relative>`` in the package share (an install) or the source tree."""
     try:
         from ament_index_python.packages import get_package_share_directory
-        share = pathlib.Path(get_package_share_directory('st_stereo')) / 'data' / 'recordings'
+        share = pathlib.Path(get_package_share_directory('st_stereo')) / 'data'
     except (ImportError, LookupError, OSError):
         share = None
-    for base in (share, pathlib.Path(__file__).resolve().parents[2] / 'data' / 'recordings'):
-        if base is not None and (base / 'office' / 'bag').is_dir():
-            return base / 'office'
-    raise FileNotFoundError('the bundled recording data/recordings/office was not found')
+    for base in (share, pathlib.Path(__file__).resolve().parents[2] / 'data'):
+        if base is not None and (base / relative).exists():
+            return base / relative
+    raise FileNotFoundError(f'package data data/{relative} not found (in the st_stereo share '
+                            'directory or the source tree)')
+
+
+def packaged_texture():
+    """Return the thermal texture the package ships (data/textures; the sim plane's default)."""
+    return _package_data(f'textures/{PACKAGED_TEXTURE}')
+
+
+def bundled_recording():
+    """Directory of the bundled recording: the package share, or the source tree."""
+    return _package_data('recordings/office/bag').parent

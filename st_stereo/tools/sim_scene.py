@@ -25,8 +25,8 @@ def plane_scene_sources(model, depth_m, texture_path=None, frames=32, seed=0,
 
     """
     if texture_path is None:
-        from st_stereo.tools.data import shared_frame
-        texture_path = shared_frame()
+        from st_stereo.tools.data import packaged_texture
+        texture_path = packaged_texture()
     texture = resize_area(read_thermal_image(texture_path), 80, 60)
     texture = low + (texture - texture.min()) * (high - low) / max(np.ptp(texture), 1e-9)
     disparity = float(model.disparity_of_depth(depth_m))
