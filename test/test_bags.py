@@ -29,17 +29,12 @@ CALIBRATION = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'calibrat
 RAW_TOPICS = ('left/image_raw', 'right/image_raw', 'left/camera_info', 'right/camera_info')
 
 
-def replay(bag, rate=0.5):
-    clouds, published, _ = replay_through_matcher(bag, rate)
-    return clouds, published
-
-
-@pytest.mark.timeout(300)
-def test_record_then_replay_twice_gives_identical_matches(tmp_path):
-    bag = tmp_path / 'raw_pair'
+def record_raw_pair(bag, seconds, compression_mode='none'):
+    """Record ``seconds`` of the simulated driver's raw pair into ``bag``; returns the recorder."""
     context, executor = new_context()
-    driver = DriverNode(context=context, parameter_overrides=[Parameter('duration', value=4.0)])
-    recorder = BagRecorder(bag, list(RAW_TOPICS), context=context)
+    driver = DriverNode(context=context, parameter_overrides=[
+        Parameter('duration', value=float(seconds))])
+    recorder = BagRecorder(bag, list(RAW_TOPICS), compression_mode, context=context)
     for node in (recorder, driver):
         executor.add_node(node)
     try:
@@ -50,6 +45,18 @@ def test_record_then_replay_twice_gives_identical_matches(tmp_path):
         driver.destroy_node()
         recorder.destroy_node()
         rclpy.try_shutdown(context=context)
+    return recorder
+
+
+def replay(bag, rate=0.5):
+    clouds, published, _ = replay_through_matcher(bag, rate)
+    return clouds, published
+
+
+@pytest.mark.timeout(300)
+def test_record_then_replay_twice_gives_identical_matches(tmp_path):
+    bag = tmp_path / 'raw_pair'
+    recorder = record_raw_pair(bag, 4.0)
     assert min(recorder.counts.values()) >= 20, recorder.counts
     first, published_first = replay(bag)
     second, published_second = replay(bag)
@@ -301,19 +308,7 @@ def test_raw_pair_recorded_with_message_compression_replays_through_the_suite(tm
     from st_stereo.bag_reading import bag_messages, message_class, open_bag
     from rclpy.serialization import deserialize_message
     bag = tmp_path / 'compressed'
-    context, executor = new_context()
-    driver = DriverNode(context=context, parameter_overrides=[Parameter('duration', value=3.0)])
-    recorder = BagRecorder(bag, list(RAW_TOPICS), 'message', context=context)
-    for node in (recorder, driver):
-        executor.add_node(node)
-    try:
-        spin_until_finished(executor, driver, 60.0)
-        spin_for(executor, 0.5)
-    finally:
-        recorder.close()
-        driver.destroy_node()
-        recorder.destroy_node()
-        rclpy.try_shutdown(context=context)
+    record_raw_pair(bag, 3.0, 'message')
     from mcap.reader import make_reader
     with open(next(bag.glob('*.mcap')), 'rb') as stream:       # stored compressed
         stored = [message.data for _, _, message in make_reader(stream).iter_messages()]

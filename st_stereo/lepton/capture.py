@@ -85,6 +85,46 @@ class RecordingTransport:
         self.inner.wait(seconds)
 
 
+class PlainByteWriter:
+    """A RecordingTransport sink writing only the bytes read, concatenated (as other tools do)."""
+
+    def __init__(self, path):
+        self.path = path
+        self.chunks = []
+
+    def read(self, stamp, data):
+        """Keep the bytes of one read."""
+        self.chunks.append(data)
+
+    def idle(self, stamp, seconds):
+        """Plain captures keep no timing."""
+
+    def close(self):
+        """Write the bytes to the file."""
+        with open(self.path, 'wb') as stream:
+            stream.write(b''.join(self.chunks))
+
+
+def record_camera(camera, path, seconds, telemetry='off', plain=False, source='st_stereo'):
+    """
+    Read ``seconds`` of a camera (a simulator's clock) with the reader, writing a capture.
+
+    ``plain``: the bytes only (``PlainByteWriter``), else this package's record format with
+    its header. Returns the reader's counters.
+    """
+    writer = PlainByteWriter(path) if plain else CaptureWriter(
+        path, {'packet_bytes': camera.packet_bytes, 'telemetry': telemetry, 'spi_hz': 20e6,
+               'source': source})
+    reader = LeptonReader(RecordingTransport(camera, writer), telemetry=telemetry,
+                          frame_gap_wait=not plain)
+    try:
+        while camera.now() < seconds:
+            reader.read_frame(timeout_s=1.0)
+    finally:
+        writer.close()
+    return reader.counters.as_dict()
+
+
 def read_capture(path):
     """
     Load a capture: (header dict, byte stream, per-byte-offset read times, damaged bytes).

@@ -132,25 +132,11 @@ def write_plain_byte_capture(path, total_rate, seed, telemetry='off', seconds=60
     Faults ``REALIGN_FAULTS`` in equal shares of ``total_rate`` per core frame. Returns the
     simulated camera: its ``intended`` and ``intact`` are the ground truth of a decoder.
     """
-    from st_stereo.lepton.capture import RecordingTransport
+    from st_stereo.lepton.capture import record_camera
     rates = {kind: total_rate / len(REALIGN_FAULTS) for kind in REALIGN_FAULTS}
     camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry=telemetry,
                              faults=FaultPlan(rates), seed=seed, phase_s=0.011)
-    chunks = []
-
-    class _Plain:
-        def read(self, stamp, data):
-            chunks.append(data)
-
-        def idle(self, stamp, seconds):
-            pass
-
-    reader = LeptonReader(RecordingTransport(camera, _Plain()), telemetry=telemetry,
-                          frame_gap_wait=False)
-    while camera.now() < seconds:
-        reader.read_frame(timeout_s=1.0)
-    with open(path, 'wb') as stream:
-        stream.write(b''.join(chunks))
+    record_camera(camera, path, seconds, telemetry, plain=True)
     return camera
 
 

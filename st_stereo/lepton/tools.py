@@ -10,9 +10,7 @@ assembly speed against real time for two cameras.
 import json
 import time
 
-from st_stereo.lepton.capture import (CaptureWriter, decode_capture, RecordingTransport,
-                                      save_frames_npz)
-from st_stereo.lepton.reader import LeptonReader
+from st_stereo.lepton.capture import decode_capture, record_camera, save_frames_npz
 from st_stereo.lepton.simulator import FAULT_KINDS, FaultPlan, LeptonSimulator, \
     SyntheticSceneSource
 
@@ -33,32 +31,8 @@ def simulate_capture(path, seconds, telemetry='off', faults=None, seed=0, plain=
     """Record ``seconds`` of one simulated camera read by the reader; returns the counters."""
     camera = LeptonSimulator(SyntheticSceneSource(seed), telemetry=telemetry, faults=faults,
                              seed=seed, phase_s=0.011)
-    if plain:
-        chunks = []
-
-        class _Plain:
-            def read(self, stamp, data):
-                chunks.append(data)
-
-            def idle(self, stamp, seconds):
-                pass
-
-            def close(self):
-                with open(path, 'wb') as stream:
-                    stream.write(b''.join(chunks))
-        writer = _Plain()
-    else:
-        writer = CaptureWriter(path, {'packet_bytes': camera.packet_bytes,
-                                      'telemetry': telemetry, 'spi_hz': 20e6,
-                                      'source': 'st-stereo lepton simulate'})
-    reader = LeptonReader(RecordingTransport(camera, writer), telemetry=telemetry,
-                          frame_gap_wait=not plain)
-    try:
-        while camera.now() < seconds:
-            reader.read_frame(timeout_s=1.0)
-    finally:
-        writer.close()
-    return reader.counters.as_dict()
+    return record_camera(camera, path, seconds, telemetry, plain,
+                         source='st-stereo lepton simulate')
 
 
 def command_simulate(args):
