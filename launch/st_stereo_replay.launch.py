@@ -22,8 +22,8 @@ REPLAY_ARGUMENTS = [
 def bag_calibrations(value):
     """Return the calibration for the TF: the URL arguments', else the bag's camera_info."""
     from st_stereo.core.camera_calibration import load_calibration
-    from st_stereo.nodes.package_urls import resolve_url
-    from st_stereo.tools.bag_images import recorded_calibrations
+    from st_stereo.package_data import resolve_url
+    from st_stereo.bag_streams import recorded_calibrations
     if value('left_camera_info_url') and value('right_camera_info_url'):
         return [load_calibration(resolve_url(value(f'{side}_camera_info_url')))
                 for side in ('left', 'right')]
@@ -33,7 +33,7 @@ def bag_calibrations(value):
 def launch_setup(value):
     """Build the player and the nodes from the performed launch arguments (``value(name)``)."""
     from st_stereo.nodes.bags import RAW_PAIR_TOPICS
-    from st_stereo.tools.bag_images import raw_pair_namespace
+    from st_stereo.bag_streams import raw_pair_namespace
     if not value('bag'):
         raise ValueError('launch argument bag: the rosbag2 directory to replay is required')
     use_sim_time = launch_support.flag(value('use_sim_time'), 'use_sim_time')

@@ -16,35 +16,7 @@ import argparse
 import json
 import sys
 
-from st_stereo.core.config import describe_fields, STConfig
-
-
-def _parse_value(text, kind):
-    if kind is bool:
-        lowered = text.lower()
-        if lowered in ('true', '1', 'yes', 'on'):
-            return True
-        if lowered in ('false', '0', 'no', 'off'):
-            return False
-        raise ValueError(f'expected true or false, got {text!r}')
-    return kind(text)
-
-
-def config_from_assignments(assignments):
-    """Build an STConfig from ``NAME=VALUE`` strings (types from the config fields)."""
-    kinds = {name: kind for name, kind, _, _ in describe_fields()}
-    values = {}
-    for assignment in assignments or ():
-        name, sep, text = assignment.partition('=')
-        if not sep:
-            raise ValueError(f'--set: expected NAME=VALUE, got {assignment!r}')
-        if name not in kinds:
-            raise ValueError(f'--set: unknown ST parameter {name!r} (see st-stereo params)')
-        try:
-            values[name] = _parse_value(text, kinds[name])
-        except ValueError as error:
-            raise ValueError(f'--set {name}: {error}') from None
-    return STConfig(**values)
+from st_stereo.core.config import config_from_assignments, describe_fields
 
 
 def _add_config_option(parser):
@@ -251,7 +223,7 @@ def _progress(quiet):
 def command_eval_features(args):
     """Paper Table 1 / Fig. 5: features and time per image, every detector."""
     from st_stereo.tools import eval_features as ef
-    from st_stereo.tools.data import FRAMES, shared_frame
+    from st_stereo.package_data import FRAMES, shared_frame
     paths = args.image or [str(shared_frame(name)) for name in FRAMES]
     images = ef.frames_80x60(paths)
     rows, missing = ef.feature_table(images, repeats=args.repeats)
@@ -289,7 +261,7 @@ def command_eval_pipeline(args):
 
 def command_eval_points(args):
     """Score every point ST publishes, per surface, on the sequences and the recording."""
-    from st_stereo.tools.data import bundled_recording
+    from st_stereo.package_data import bundled_recording
     from st_stereo.tools import eval_points
     config = config_from_assignments(args.set)
     sequences = [name for name in args.sequences.split(',') if name]

@@ -9,7 +9,7 @@ from st_stereo.core.camera_calibration import load_calibration
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_from_mapping, \
     rig_static_transforms, static_transform_arguments
 from st_stereo.nodes.node_parameters import driver_parameter
-from st_stereo.nodes.package_urls import resolve_url
+from st_stereo.package_data import resolve_url
 
 TRUE = ('true', '1', 'yes', 'on')
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from st_stereo.core.image_io import read_thermal_image, resize_area
-from st_stereo.tools.data import FRAMES, shared_thermal_dir
+from st_stereo.package_data import FRAMES, shared_thermal_dir
 
 
 @pytest.fixture(scope='session')

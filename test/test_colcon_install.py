@@ -112,8 +112,8 @@ def test_colcon_installs_executables_share_files_and_the_ament_index(workspace):
 def test_installed_code_resolves_package_urls_in_the_install(workspace):
     ws, environment, python = workspace
     script = ('import st_stereo.nodes.driver_node as d; '
-              'from st_stereo.nodes.package_urls import resolve_url; '
-              'from st_stereo.tools.data import packaged_texture; '
+              'from st_stereo.package_data import resolve_url; '
+              'from st_stereo.package_data import packaged_texture; '
               'print(d.__file__); '
               'print(resolve_url("package://st_stereo/config/calibration/left.yaml")); '
               'print(packaged_texture())')

@@ -90,7 +90,8 @@ def test_layouts():
 
 
 def test_image_files_and_recordings_feed_the_simulator(thermal_dir, tmp_path):
-    from st_stereo.lepton.simulator import ImageFileSource, RecordingSource
+    from st_stereo.lepton.simulator import RecordingSource
+    from st_stereo.sim.plane import ImageFileSource
     source = ImageFileSource([thermal_dir / 'people_lab_180x180.png',
                               thermal_dir / 'ducks.png'])
     camera = LeptonSimulator(source)

@@ -168,7 +168,7 @@ def test_a_horizontal_edge_alone_yields_no_accepted_match():
 def test_a_tilted_plane_has_no_disparity_bias():
     # A floor-like plane: disparity 8 px at the top row growing 0.2 px per row.
     from st_stereo.tools.eval_subpixel import load_frame
-    from st_stereo.tools.data import shared_frame
+    from st_stereo.package_data import shared_frame
     frame = load_frame(shared_frame('floor_heating.png'), (80, 60)).astype(np.float64)
     disparity = 8.0 + 0.2 * np.arange(60)
     right = np.stack([fourier_shift_image_x(frame, d)[row] for row, d in enumerate(disparity)])

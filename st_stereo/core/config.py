@@ -196,3 +196,32 @@ def _validate_field(field, expected_type, value):
         raise ValueError(f'{name}: expected a value in [{low}, {high}], got {value!r}')
     if meta.get('odd') and value % 2 != 1:
         raise ValueError(f'{name}: expected an odd number, got {value!r}')
+
+
+def _parse_value(text, kind):
+    """Parse one ``--set`` value as the field's type (bools: true/false, 1/0, yes/no, on/off)."""
+    if kind is bool:
+        lowered = text.lower()
+        if lowered in ('true', '1', 'yes', 'on'):
+            return True
+        if lowered in ('false', '0', 'no', 'off'):
+            return False
+        raise ValueError(f'expected true or false, got {text!r}')
+    return kind(text)
+
+
+def config_from_assignments(assignments):
+    """Build an STConfig from ``NAME=VALUE`` strings (types from the config fields)."""
+    kinds = {name: kind for name, kind, _, _ in describe_fields()}
+    values = {}
+    for assignment in assignments or ():
+        name, sep, text = assignment.partition('=')
+        if not sep:
+            raise ValueError(f'--set: expected NAME=VALUE, got {assignment!r}')
+        if name not in kinds:
+            raise ValueError(f'--set: unknown ST parameter {name!r} (see st-stereo params)')
+        try:
+            values[name] = _parse_value(text, kinds[name])
+        except ValueError as error:
+            raise ValueError(f'--set {name}: {error}') from None
+    return STConfig(**values)

@@ -41,7 +41,6 @@ import contextlib
 import dataclasses
 import errno
 import fcntl
-import hashlib
 import json
 import math
 import multiprocessing
@@ -59,6 +58,7 @@ import time
 import numpy as np
 
 from st_stereo.lepton.assembler import FrameLayout
+from st_stereo.lepton.fakes import pixels_digest, SentFrame
 from st_stereo.lepton.packets import (encode_frame_packets, make_discard_packet,
                                       RAW14_PACKET_BYTES)
 from st_stereo.lepton.telemetry import encode_telemetry_row_a
@@ -85,12 +85,6 @@ _BUSES = _json.loads(_pathlib.Path(__file__).with_name('rig_buses.json').read_te
 _module = _make({int(n): (lambda a=a: _RemoteCci(a)) for n, a in _BUSES.items()})
 SMBus, i2c_msg = _module.SMBus, _module.i2c_msg
 '''
-
-
-def pixels_digest(pixels):
-    """Digest identifying a frame's pixels (little-endian uint16 bytes, as in a mono16 Image)."""
-    data = np.ascontiguousarray(pixels, dtype='<u2').tobytes()
-    return hashlib.blake2b(data, digest_size=10).hexdigest()
 
 
 @dataclasses.dataclass
@@ -688,13 +682,3 @@ class RigEmulator:
             for name in ('spidev', 'smbus2'):
                 sys.modules.pop(name, None)
             sys.modules.update(saved)
-
-
-@dataclasses.dataclass(frozen=True)
-class SentFrame:
-    """A unique frame an emulated camera sent: its index, acquisition time and pixel digest."""
-
-    unique: int
-    stamp: float              # time.monotonic() at which the frame was ready
-    digest: str
-    ffc: bool

@@ -13,8 +13,12 @@ Fakes of the hardware around a Lepton, for tests and benchmarks only (never used
 - ``FakeV4L2Board``: a PureThermal board's V4L2 stream on the wall clock.
 """
 
+import dataclasses
 import errno
+import hashlib
 import types
+
+import numpy as np
 
 from st_stereo.lepton.cci import (CMD_AGC_ENABLE, CMD_FPA_TEMPERATURE, CMD_PING, CMD_REBOOT,
                                   CMD_RUN_FFC, CMD_TELEMETRY_ENABLE, CMD_TELEMETRY_LOCATION, GET,
@@ -261,9 +265,7 @@ class FakeV4L2Board:
 
     def frame_at(self, core):
         """Return the Y16 frame of core frame ``core`` (records the unique frame once)."""
-        from st_stereo.lepton.emulator import pixels_digest, SentFrame
         from st_stereo.lepton.telemetry import encode_telemetry_row_a
-        import numpy as np
         unique = core // 3
         with self.lock:
             cached, pixels = self._cache
@@ -314,3 +316,19 @@ class _FakeV4L2Capture:
 
     def release(self):
         self.opened = False
+
+
+def pixels_digest(pixels):
+    """Digest identifying a frame's pixels (little-endian uint16 bytes, as in a mono16 Image)."""
+    data = np.ascontiguousarray(pixels, dtype='<u2').tobytes()
+    return hashlib.blake2b(data, digest_size=10).hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class SentFrame:
+    """A unique frame an emulated camera sent: its index, acquisition time and pixel digest."""
+
+    unique: int
+    stamp: float              # time.monotonic() at which the frame was ready
+    digest: str
+    ffc: bool

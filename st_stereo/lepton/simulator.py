@@ -72,24 +72,6 @@ class ArraySource:
         return self.frames[index % len(self.frames)]
 
 
-class ImageFileSource(ArraySource):
-    """
-    Frames from thermal image files, resized to 80x60 (pixel-area) and mapped to 14-bit counts.
-
-    Each file's range is mapped linearly onto ``low..high`` counts (a room-temperature scene
-    of a Lepton spans a few hundred counts around 8000); the files repeat cyclically.
-    """
-
-    def __init__(self, paths, low=7800.0, high=8600.0):
-        from st_stereo.core.image_io import read_thermal_image, resize_area
-        frames = []
-        for path in paths:
-            image = resize_area(read_thermal_image(path), 80, 60)
-            span = max(float(np.ptp(image)), 1e-9)
-            frames.append(low + (image - image.min()) * (high - low) / span)
-        super().__init__(np.stack(frames))
-
-
 class RecordingSource(ArraySource):
     """Frames of a decoded recording (``st-stereo lepton decode --out frames.npz``)."""
 

@@ -2,11 +2,11 @@
 
 import bisect
 
+from st_stereo.bag_streams import raw_image_messages, recorded_pair_info
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.lepton.reader import EndOfStream, LeptonFrame
 from st_stereo.nodes.conversions import msg_to_image
-from st_stereo.tools.bag_images import raw_image_messages, recorded_pair_info
 
 
 class _BagTime:

@@ -42,9 +42,9 @@ from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import DEPRECATED_DRIVER_PARAMETERS, DRIVER_PARAMETERS, \
     SIDES
-from st_stereo.nodes.package_urls import resolve_url
 from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import spin_node, with_default_namespace
+from st_stereo.package_data import resolve_url
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -158,7 +158,7 @@ class DriverNode(Node):
         if self.source == 'sim':
             from st_stereo.core.triangulation import StereoModel
             from st_stereo.lepton.simulator import LeptonSimulator
-            from st_stereo.tools.sim_scene import plane_scene_sources
+            from st_stereo.sim.plane import plane_scene_sources
             model = StereoModel.from_projection_matrices(self.calibrations[0].projection,
                                                          self.calibrations[1].projection)
             sources = plane_scene_sources(model, self.sim_depth, self.sim_texture or None)

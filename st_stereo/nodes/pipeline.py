@@ -71,14 +71,6 @@ def main(args=None):
     return max(getattr(node, 'exit_code', 0) for node in nodes)
 
 
-def default_recording():
-    """Return the bundled recording (package share, or the source tree for a pip install)."""
-    import pathlib
-
-    from st_stereo.nodes.package_urls import resolve_url
-    return pathlib.Path(resolve_url('package://st_stereo/data/recordings/office/README.md')).parent
-
-
 def run_suite(argv=None):
     """
     Run the main job: the whole suite in one process on a finite stream.
@@ -108,8 +100,9 @@ def run_suite(argv=None):
     else:
         import pathlib
 
+        from st_stereo.package_data import bundled_recording
         from st_stereo.sim.recording import load_ground_truth
-        recording = pathlib.Path(args.recording) if args.recording else default_recording()
+        recording = pathlib.Path(args.recording) if args.recording else bundled_recording()
         if not (recording / 'bag').is_dir():
             raise SystemExit(f'st-stereo-suite: {recording}: not a recording directory (no '
                              f'bag/ in it)')

@@ -36,7 +36,7 @@ def load_textures(blur_texels=1.0):
     ``office_room``, no texture detail is finer than the renderer's ray spacing: detail that
     fine would alias differently in the two views and act as noise no real scene has.
     """
-    from st_stereo.tools.data import shared_frame
+    from st_stereo.package_data import shared_frame
     return {name: normalised_texture(ndimage.gaussian_filter(
                 read_thermal_image(shared_frame(file)), blur_texels, mode='wrap'))
             for name, file in (('floor', 'floor_heating.png'), ('wall', 'ducks.png'),

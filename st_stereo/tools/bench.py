@@ -163,10 +163,10 @@ def main(args):
     import cv2
     from tqdm import tqdm
 
-    from st_stereo.cli import config_from_assignments
+    from st_stereo.core.config import config_from_assignments
     from st_stereo.core.image_io import read_thermal_image
     from st_stereo.core.matcher import StereoMatcher
-    from st_stereo.tools.data import shared_frame
+    from st_stereo.package_data import shared_frame
 
     cv2.setNumThreads(1)
     frame = read_thermal_image(args.image or shared_frame()).astype(np.float64)

@@ -15,6 +15,7 @@ import pathlib
 import cv2
 import numpy as np
 
+from st_stereo.bag_streams import raw_image_messages
 from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
                                                find_target, REJECTIONS, to_u8)
 from st_stereo.core.camera_calibration import save_calibration
@@ -22,7 +23,6 @@ from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.stereo_calibration import (calibrate_stereo, coverage,
                                                OUTLIER_VIEW_FACTOR)
-from st_stereo.tools.bag_images import raw_image_messages
 
 IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
 MIN_COVERED_CELLS = 0.5

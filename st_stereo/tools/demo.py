@@ -25,8 +25,8 @@ def depth_sequence(frames):
 
 def main(args):
     """Run the demo sequence; returns the exit code."""
-    from st_stereo.cli import config_from_assignments
-    from st_stereo.tools.data import shared_frame
+    from st_stereo.core.config import config_from_assignments
+    from st_stereo.package_data import shared_frame
 
     if args.frames < 1:
         raise ValueError(f'--frames must be at least 1, got {args.frames}')

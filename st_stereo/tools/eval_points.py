@@ -100,7 +100,7 @@ def evaluate_sequence(spec, config=None, stride=2, textures=None, max_frames=Non
 
 def recording_pairs(recording):
     """Yield ``(stamp_ns, left, right)`` raw uint16 pairs of a recording's bag, stamp order."""
-    from st_stereo.tools.bag_images import raw_image_messages
+    from st_stereo.bag_streams import raw_image_messages
     pending = {}
     for side, stamp, msg in raw_image_messages(pathlib.Path(recording) / 'bag'):
         image = np.frombuffer(bytes(msg.data), dtype='<u2').reshape(msg.height, msg.width)
@@ -219,7 +219,7 @@ def error_figure(path, times=(3.0,), config=None):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from st_stereo.tools.data import bundled_recording
+    from st_stereo.package_data import bundled_recording
     from st_stereo.sim.recording import frame_truth, load_ground_truth
     from st_stereo.sim.sequences import load_textures, SequenceRenderer, standard_sequences
     textures = load_textures()

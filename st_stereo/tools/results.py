@@ -38,7 +38,7 @@ def run_all(out_path, quick=False, progress_factory=None, log=print):
     from st_stereo.tools import eval_features as ef
     from st_stereo.tools import eval_pipeline as ep
     from st_stereo.tools import eval_subpixel as es
-    from st_stereo.tools.data import FRAMES, shared_frame
+    from st_stereo.package_data import FRAMES, shared_frame
 
     out_path = pathlib.Path(out_path)
     figures = out_path.parent / 'results'
@@ -104,7 +104,7 @@ def run_all(out_path, quick=False, progress_factory=None, log=print):
 
     # 5. Every point a tracker receives, per surface (issue 12), and error overlays.
     from st_stereo.tools import eval_points
-    from st_stereo.tools.data import bundled_recording
+    from st_stereo.package_data import bundled_recording
     log('scoring every point per surface')
     results['points'], results['points_motion'] = eval_points.evaluate(
         stride=8 if quick else 2, recording=bundled_recording(),

@@ -1,4 +1,4 @@
-"""The raw image streams of a rosbag2, read with ``rosbags`` alone (no ROS installation)."""
+"""The suite's topics in a rosbag2 (raw images, pair_info, camera_info), with ``rosbags`` alone."""
 
 import pathlib
 
