@@ -2,8 +2,6 @@
 
 import pathlib
 
-import numpy as np
-
 SIDES = ('left', 'right')
 
 
@@ -76,7 +74,7 @@ def recorded_calibrations(path):
     from rosbags.typesys import get_typestore, Stores
 
     from st_stereo.bag_reading import bag_messages, normalized_msgtype, open_bag
-    from st_stereo.core.camera_calibration import CameraCalibration
+    from st_stereo.core.camera_calibration import calibration_from_camera_info
     path = pathlib.Path(path)
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
@@ -89,14 +87,8 @@ def recorded_calibrations(path):
                 reader, [c for c in reader.connections if c.id in wanted]):
             side = wanted[connection.id]
             if side not in found:
-                msg = typestore.deserialize_cdr(data, 'sensor_msgs/msg/CameraInfo')
-                found[side] = CameraCalibration(
-                    width=int(msg.width), height=int(msg.height), camera_name=side,
-                    camera_matrix=np.array(msg.k, dtype=float).reshape(3, 3),
-                    distortion_model=msg.distortion_model or 'plumb_bob',
-                    distortion=np.array(msg.d, dtype=float),
-                    rectification=np.array(msg.r, dtype=float).reshape(3, 3),
-                    projection=np.array(msg.p, dtype=float).reshape(3, 4))
+                found[side] = calibration_from_camera_info(
+                    typestore.deserialize_cdr(data, 'sensor_msgs/msg/CameraInfo'), side)
             if len(found) == 2:
                 break
     finally:

@@ -6,22 +6,19 @@ code never needs them). The transforms' numbers come from ``st_stereo.core.rig_p
 """
 
 from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.config import parse_bool
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_from_mapping, \
     rig_static_transforms, static_transform_arguments
 from st_stereo.nodes.node_parameters import driver_parameter
 from st_stereo.package_data import resolve_url
 
-TRUE = ('true', '1', 'yes', 'on')
-
 
 def flag(text, name):
     """Return a launch argument's text as a bool; ValueError names the argument."""
-    lowered = str(text).strip().lower()
-    if lowered in TRUE:
-        return True
-    if lowered in ('false', '0', 'no', 'off'):
-        return False
-    raise ValueError(f'launch argument {name}: expected true or false, got {text!r}')
+    try:
+        return parse_bool(text)
+    except ValueError as error:
+        raise ValueError(f'launch argument {name}: {error}') from None
 
 
 def common_arguments(share):

@@ -104,6 +104,21 @@ def parse_calibration(document, source='<calibration>'):
                              projection=matrices['projection_matrix'])
 
 
+def calibration_from_camera_info(msg, camera_name=''):
+    """
+    Return the CameraCalibration of a sensor_msgs/CameraInfo.
+
+    Any object with CameraInfo's fields (rclpy's message, a rosbags-deserialized one).
+    """
+    return CameraCalibration(width=int(msg.width), height=int(msg.height),
+                             camera_name=camera_name,
+                             camera_matrix=np.array(msg.k, dtype=float).reshape(3, 3),
+                             distortion_model=msg.distortion_model or 'plumb_bob',
+                             distortion=np.array(msg.d, dtype=float),
+                             rectification=np.array(msg.r, dtype=float).reshape(3, 3),
+                             projection=np.array(msg.p, dtype=float).reshape(3, 4))
+
+
 def load_calibration(path):
     """Read and validate a camera_calibration YAML file."""
     path = os.fspath(path)

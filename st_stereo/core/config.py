@@ -198,16 +198,19 @@ def _validate_field(field, expected_type, value):
         raise ValueError(f'{name}: expected an odd number, got {value!r}')
 
 
+def parse_bool(text):
+    """Return a true/false text as a bool (true/false, 1/0, yes/no, on/off, any case)."""
+    lowered = str(text).strip().lower()
+    if lowered in ('true', '1', 'yes', 'on'):
+        return True
+    if lowered in ('false', '0', 'no', 'off'):
+        return False
+    raise ValueError(f'expected true or false, got {text!r}')
+
+
 def _parse_value(text, kind):
-    """Parse one ``--set`` value as the field's type (bools: true/false, 1/0, yes/no, on/off)."""
-    if kind is bool:
-        lowered = text.lower()
-        if lowered in ('true', '1', 'yes', 'on'):
-            return True
-        if lowered in ('false', '0', 'no', 'off'):
-            return False
-        raise ValueError(f'expected true or false, got {text!r}')
-    return kind(text)
+    """Parse one ``--set`` value as the field's type."""
+    return parse_bool(text) if kind is bool else kind(text)
 
 
 def config_from_assignments(assignments):

@@ -9,7 +9,6 @@ instead of 1.3 ms for ``list(...)``). Every reader checks encoding, size and ste
 
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
-from st_stereo.core.camera_calibration import CameraCalibration
 from stereo_msgs.msg import DisparityImage
 
 ENCODINGS = {'mono16': (np.dtype('<u2'), 2), 'mono8': (np.dtype('u1'), 1),
@@ -60,17 +59,6 @@ def camera_info_from_calibration(calibration, header):
     msg.r = [float(v) for v in calibration.rectification.ravel()]
     msg.p = [float(v) for v in calibration.projection.ravel()]
     return msg
-
-
-def calibration_from_camera_info(msg, camera_name=''):
-    """Return the CameraCalibration of a sensor_msgs/CameraInfo (e.g. from SetCameraInfo)."""
-    return CameraCalibration(width=int(msg.width), height=int(msg.height),
-                             camera_name=camera_name,
-                             camera_matrix=np.array(msg.k, dtype=float).reshape(3, 3),
-                             distortion_model=msg.distortion_model or 'plumb_bob',
-                             distortion=np.array(msg.d, dtype=float),
-                             rectification=np.array(msg.r, dtype=float).reshape(3, 3),
-                             projection=np.array(msg.p, dtype=float).reshape(3, 4))
 
 
 def rectified_camera_info(msg, header):

@@ -33,7 +33,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
-from st_stereo.core.camera_calibration import load_calibration, save_calibration
+from st_stereo.core.camera_calibration import calibration_from_camera_info, \
+    load_calibration, save_calibration
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError
 from st_stereo.lepton.pairing import pair_info_values, PairSynchronizer, SKEW_KEY
@@ -401,8 +402,8 @@ class DriverNode(Node):
     def _set_camera_info(self, index, request, response):
         url = self.info_urls[index]
         try:
-            calibration = conversions.calibration_from_camera_info(request.camera_info,
-                                                                   self.camera_names[index])
+            calibration = calibration_from_camera_info(request.camera_info,
+                                                       self.camera_names[index])
             if (calibration.width, calibration.height) != (80, 60):
                 raise ValueError(f'camera_info is {calibration.width}x{calibration.height}, '
                                  f'the Lepton 2 is 80x60')

@@ -125,7 +125,7 @@ class MatcherNode(Node):
             self.counts['pair_info_unreadable'] += 1
             self.last_pair_info_problem = str(error)
             return
-        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        stamp = _stamp_key(msg)
         self.pair_times[stamp] = (left_time, skew)
         self.pair_info_seen = True
         while len(self.pair_times) > 64:
@@ -143,8 +143,8 @@ class MatcherNode(Node):
                 time.monotonic() - self._waiting[0] > self.pair_info_wait:
             self._release_waiting()       # matched without skew compensation (counted)
 
-    def _compensate_skew(self, result, left, header, model, bounds):
-        stamp = (header.stamp.sec, header.stamp.nanosec)
+    def _compensate_skew(self, result, left, msg, model, bounds):
+        stamp = _stamp_key(msg)
         # Without its pair_info a pair has neither a skew nor a left acquisition time (the
         # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
         # usable previous time either.
@@ -176,7 +176,7 @@ class MatcherNode(Node):
             result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
                                    right_valid=data_mask(right_msg, right))
             if self.config.skew_compensation:
-                result = self._compensate_skew(result, left, left_msg.header, model,
+                result = self._compensate_skew(result, left, left_msg, model,
                                                matcher.disparity_bounds())
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1

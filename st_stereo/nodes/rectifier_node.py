@@ -17,6 +17,7 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 
+from st_stereo.core.camera_calibration import calibration_from_camera_info
 from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
@@ -62,8 +63,8 @@ class RectifierNode(Node):
                tuple(right_info.d), tuple(left_info.r), tuple(right_info.r))
         if key != self._calibration_key:
             self.rectifier = StereoRectifier(
-                conversions.calibration_from_camera_info(left_info, 'left'),
-                conversions.calibration_from_camera_info(right_info, 'right'))
+                calibration_from_camera_info(left_info, 'left'),
+                calibration_from_camera_info(right_info, 'right'))
             self._calibration_key = key
         return self.rectifier
 

@@ -199,6 +199,13 @@ SKEW_BINS_MS = ((-60.0, -50.0), (-50.0, -35.0), (-35.0, -25.0), (-25.0, -15.0), 
                 (-5.0, 5.0), (5.0, 15.0), (15.0, 25.0), (25.0, 35.0), (35.0, 50.0), (50.0, 60.0))
 
 
+def match_pixels(truth, x_left, y):
+    """Return the ground-truth pixel (column, row) of each match: rounded, clipped."""
+    rows, cols = truth.labels.shape
+    return (np.clip(np.rint(x_left).astype(int), 0, cols - 1),
+            np.clip(np.rint(y).astype(int), 0, rows - 1))
+
+
 def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds):
     """
     Signed disparity errors of the matches on people (visible to the right camera).
@@ -208,9 +215,7 @@ def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds):
     speed (px/s) of the person it lies on (``head_speeds[i]`` for label
     ``PERSON_LABEL_BASE + i``).
     """
-    rows, cols = truth.depth.shape
-    u = np.clip(np.rint(x_left).astype(int), 0, cols - 1)
-    v = np.clip(np.rint(y).astype(int), 0, rows - 1)
+    u, v = match_pixels(truth, x_left, y)
     label = truth.labels[v, u]
     on_person = (label >= PERSON_LABEL_BASE) & truth.visible_right[v, u]
     own = np.asarray(disparity, dtype=np.float64) - model.disparity_offset

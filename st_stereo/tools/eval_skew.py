@@ -20,7 +20,7 @@ from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import feature_motion, skew_corrected_disparity
-from st_stereo.sim.scoring import people_disparity_errors, PERSON_LABEL_BASE, \
+from st_stereo.sim.scoring import match_pixels, people_disparity_errors, PERSON_LABEL_BASE, \
     SPEED_BINS_PX_S as SPEED_BINS
 
 SKEWS_MS = (-55.0, -25.0, 10.0, 25.0, 40.0, 55.0)
@@ -30,9 +30,7 @@ HELD_OUT_SEQUENCES = ('meeting_room',)
 
 def head_velocity_of_matches(truth, result, head_velocities):
     """Signed image velocity (px/s) of the head of the person each match lies on (0 off people)."""
-    rows, cols = truth.labels.shape
-    u = np.clip(np.rint(result.x_left).astype(int), 0, cols - 1)
-    v = np.clip(np.rint(result.y).astype(int), 0, rows - 1)
+    u, v = match_pixels(truth, result.x_left, result.y)
     person = truth.labels[v, u] - PERSON_LABEL_BASE
     on_person = (person >= 0) & (person < len(head_velocities))
     out = np.zeros(len(u))
