@@ -6,6 +6,7 @@ import pytest
 
 from st_stereo.core import STConfig, StereoMatcher, StereoModel
 from st_stereo.core.fourier import fourier_shift_image_x
+from st_stereo.core.matcher import PUBLISH_REJECTION_KEYS
 from st_stereo.core.rough_matching import REJECTION_KEYS
 from st_stereo.core.subpixel import SUBPIXEL_REJECTION_KEYS
 
@@ -36,8 +37,9 @@ def test_every_feature_is_accounted_for(people_80x60):
     counts = result.counts
     rough_rejected = sum(counts[f'rejected_{key}'] for key in REJECTION_KEYS)
     assert counts['features'] == counts['rough_matches'] + rough_rejected
-    late = sum(counts[f'rejected_{key}'] for key in SUBPIXEL_REJECTION_KEYS)
-    assert counts['rough_matches'] == counts['matches'] + late + counts['rejected_uniqueness']
+    late = sum(counts[f'rejected_{key}'] for key in SUBPIXEL_REJECTION_KEYS +
+               PUBLISH_REJECTION_KEYS)
+    assert counts['rough_matches'] == counts['matches'] + late
     assert counts['matches'] == len(result)
     assert set(result.timings_ms) == {'features', 'rough_matching', 'subpixel',
                                       'triangulation', 'total'}

@@ -120,6 +120,16 @@ class STConfig:
                                    '(docs/results.md: outliers against the share kept)',
                                    low=0.0, high=1.0)
 
+    depth_edge_check: bool = _field(
+        True, 'reject a match on the cool side of a strong intensity edge unless a POC window '
+        'moved half a window plus 1 px into that side finds the same disparity: weakly '
+        'textured background beside a warm person otherwise carries the person disparity '
+        '(st_stereo.core.depth_edges, docs/results.md)')
+    depth_edge_tolerance: float = _field(1.0, 'largest disparity difference, pixels, between a '
+                                         'match and the window moved into its side '
+                                         '(depth_edge_check)',
+                                         low=0.05, high=4.0)
+
     # --- 5. Camera skew (two free-running cameras; st_stereo.core.skew) --------------------
     skew_compensation: bool = _field(True, 'correct the disparities of moving features for '
                                      'the camera skew of the pair (t_right - t_left, from '

@@ -16,6 +16,8 @@ import time
 import numpy as np
 
 from st_stereo.core.config import STConfig
+from st_stereo.core.depth_edges import (cool_side_features, edge_position, side_agrees,
+                                        side_window_centres)
 from st_stereo.core.phase_congruency import feature_strength
 from st_stereo.core.rough_matching import (enforce_uniqueness, REJECTION_KEYS, rough_match,
                                            RoughMatches)
@@ -24,6 +26,8 @@ from st_stereo.core.triangulation import triangulate
 
 MIN_IMAGE_SIDE = 16
 STAGES = ('features', 'rough_matching', 'subpixel', 'triangulation')
+# Refined matches dropped after the sub-pixel stage, in this order (counts 'rejected_<key>').
+PUBLISH_REJECTION_KEYS = ('range', 'confidence', 'depth_edge', 'uniqueness')
 
 
 def validate_image(image, name):
@@ -274,6 +278,15 @@ class StereoMatcher:
         unconfident = keep & (confidence < config.min_confidence)
         counts['rejected_confidence'] = int(unconfident.sum())
         keep &= ~unconfident
+        if config.depth_edge_check:
+            beside_edge, unchecked = depth_edge_rejects(left, poc_left, poc_right, rough.y,
+                                                        rough.x_left, refined.disparity, keep,
+                                                        config)
+            counts['rejected_depth_edge'] = int(beside_edge.sum())
+            counts['depth_edge_unchecked'] = unchecked
+            keep &= ~beside_edge
+        else:
+            counts['rejected_depth_edge'] = counts['depth_edge_unchecked'] = 0
         if config.uniqueness:
             unique = enforce_uniqueness(rough.y[keep], rough.x_left[keep],
                                         rough.x_left[keep] - refined.disparity[keep],
@@ -298,6 +311,39 @@ class StereoMatcher:
                            points=points, counts=counts, timings_ms=timings,
                            image_shape=left.shape, feature_images=moments, rough=rough,
                            confidence=confidence[keep])
+
+
+def depth_edge_rejects(intensity, poc_left, poc_right, y, x_left, disparity, candidates,
+                       config):
+    """
+    Find the matches beside a depth edge whose own side does not carry their disparity.
+
+    Of the ``candidates``, those on the cool side of a strong edge (``edge_position``,
+    ``cool_side_features``) are re-measured by POC (eqs. 10-17) with a window moved into their
+    own side (``side_window_centres``) and started at their integer disparity; a match is
+    rejected when that window fails or disagrees by more than ``depth_edge_tolerance``
+    (``st_stereo.core.depth_edges``). A side whose right window would start left of the
+    right image cannot be measured: the match is kept and counted as unchecked. Returns the
+    bool mask of rejects over all matches and the number unchecked.
+    """
+    rejects = np.zeros(len(y), dtype=bool)
+    index = np.flatnonzero(candidates)
+    if not len(index):
+        return rejects, 0
+    position, contrast, normal = edge_position(intensity, y[index], x_left[index])
+    cool = cool_side_features(position, contrast)
+    index, normal = index[cool], normal[cool]
+    if not len(index):
+        return rejects, 0
+    half = config.poc_window // 2
+    side_y, side_x = side_window_centres(y[index], x_left[index], normal, intensity.shape, half)
+    start = np.rint(disparity[index]).astype(int)
+    reachable = side_x - start >= 0
+    index = index[reachable]
+    side = refine_subpixel_poc(poc_left, poc_right, side_y[reachable], side_x[reachable],
+                               start[reachable], config)
+    rejects[index[~side_agrees(side, disparity[index], config.depth_edge_tolerance)]] = True
+    return rejects, int((~reachable).sum())
 
 
 DISTINCTIVENESS_SCALE = 0.1
