@@ -41,7 +41,7 @@ def test_every_feature_is_accounted_for(people_80x60):
                PUBLISH_REJECTION_KEYS)
     assert counts['rough_matches'] == counts['matches'] + late
     assert counts['matches'] == len(result)
-    assert set(result.timings_ms) == {'features', 'rough_matching', 'subpixel',
+    assert set(result.timings_ms) == {'features', 'rough_matching', 'subpixel', 'depth_edges',
                                       'triangulation', 'total'}
 
 

@@ -25,7 +25,7 @@ from st_stereo.core.subpixel import refine_subpixel_poc, SUBPIXEL_REJECTION_KEYS
 from st_stereo.core.triangulation import triangulate
 
 MIN_IMAGE_SIDE = 16
-STAGES = ('features', 'rough_matching', 'subpixel', 'triangulation')
+STAGES = ('features', 'rough_matching', 'subpixel', 'depth_edges', 'triangulation')
 # Refined matches dropped after the sub-pixel stage, in this order (counts 'rejected_<key>').
 PUBLISH_REJECTION_KEYS = ('range', 'confidence', 'depth_edge', 'uniqueness')
 
@@ -278,6 +278,7 @@ class StereoMatcher:
         unconfident = keep & (confidence < config.min_confidence)
         counts['rejected_confidence'] = int(unconfident.sum())
         keep &= ~unconfident
+        edge_tick = time.perf_counter()
         if config.depth_edge_check:
             beside_edge, unchecked = depth_edge_rejects(left, poc_left, poc_right, rough.y,
                                                         rough.x_left, refined.disparity, keep,
@@ -287,6 +288,7 @@ class StereoMatcher:
             keep &= ~beside_edge
         else:
             counts['rejected_depth_edge'] = counts['depth_edge_unchecked'] = 0
+        timings['depth_edges'] = _elapsed_ms(edge_tick)
         if config.uniqueness:
             unique = enforce_uniqueness(rough.y[keep], rough.x_left[keep],
                                         rough.x_left[keep] - refined.disparity[keep],
@@ -296,7 +298,7 @@ class StereoMatcher:
         else:
             counts['rejected_uniqueness'] = 0
         counts['matches'] = int(keep.sum())
-        timings['subpixel'] = _elapsed_ms(tick)
+        timings['subpixel'] = _elapsed_ms(tick) - timings['depth_edges']
 
         tick = time.perf_counter()
         x_left, y = rough.x_left[keep], rough.y[keep]
