@@ -2,7 +2,7 @@
 
 import collections
 
-from st_stereo.tools.rig_bench import UNIQUE_PERIOD_S
+from st_stereo.lepton.packets import UNIQUE_FRAME_PERIOD_S
 
 # A copy late is 38 ms, a wrong partner 114 ms; the emulator's own scheduling delays on a busy
 # machine reach about 16 ms.
@@ -20,7 +20,7 @@ def pairs_of(got):
 
 def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None,
                  tolerance_s=STAMP_TOLERANCE_S,
-                 max_skew_s=UNIQUE_PERIOD_S):
+                 max_skew_s=UNIQUE_FRAME_PERIOD_S):
     """
     Assert what the issue asks of a published stream against what the cameras sent.
 

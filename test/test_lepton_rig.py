@@ -20,12 +20,12 @@ from st_stereo.lepton import spi
 from st_stereo.lepton.cci import LeptonCCI, SMBus2Bus
 from st_stereo.lepton.emulator import CameraConfig, RigEmulator, TimedScene
 from st_stereo.lepton.fakes import FakeV4L2Board
+from st_stereo.lepton.packets import UNIQUE_FRAME_PERIOD_S
 from st_stereo.lepton.reader import LeptonReader
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.tools.rig_bench import (RigSubscriber, spi_parameters, SteppingClock,
-                                       UNIQUE_PERIOD_S)
+from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters, SteppingClock
 from std_srvs.srv import Trigger
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -43,7 +43,7 @@ FLOW_RATE = 2.0 if STRICT else 1.0
 RESUME_S = 2.0 if STRICT else 6.0
 
 
-def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_PERIOD_S, wall_stamps=True):
+def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_FRAME_PERIOD_S, wall_stamps=True):
     """
     ``check_stream`` with the mode's timing: stamp accuracy and pair skew bound in strict.
 

@@ -11,8 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from st_stereo.lepton.packets import (crc_matches, IMAGE_ROWS, is_discard, packet_crc,
-                                      packet_number, segment_number)
+from st_stereo.lepton.packets import (crc_matches, DISCARD_MASK, IMAGE_ROWS, is_discard,
+                                      NUMBER_MASK, packet_crc, packet_number, segment_number)
 
 TELEMETRY_MODES = ('off', 'header', 'footer')
 
@@ -180,7 +180,8 @@ class FrameAssembler:
         """
         Feed packets ``first, first + 1, ...`` of a chunk; stop at the first result.
 
-        Same decisions as calling ``feed`` packet by packet, faster: discards outside a
+        Same decisions as calling ``feed`` packet by packet, faster (the ID tests of
+        ``is_discard`` and ``packet_number`` are inlined on the masks): discards outside a
         frame are counted in bulk, and a run of in-sequence packets is checked with one CRC
         loop. Returns ``(next_index, result)`` with result None when the chunk is exhausted.
         """
@@ -190,21 +191,21 @@ class FrameAssembler:
         i = first
         while i < count:
             packet_id = ids[i]
-            if not self._in_frame and (packet_id & 0x0F00) == 0x0F00:
+            if not self._in_frame and (packet_id & DISCARD_MASK) == DISCARD_MASK:
                 j = i + 1
-                while j < count and (ids[j] & 0x0F00) == 0x0F00:
+                while j < count and (ids[j] & DISCARD_MASK) == DISCARD_MASK:
                     j += 1
                 counters.packets += j - i
                 counters.discards += j - i
                 i = j
                 continue
-            if self._in_frame and (packet_id & 0x0FFF) == self._expected \
-                    and (packet_id & 0x0F00) != 0x0F00:
+            if self._in_frame and (packet_id & NUMBER_MASK) == self._expected \
+                    and (packet_id & DISCARD_MASK) != DISCARD_MASK:
                 expected = self._expected
                 j = i
                 limit = min(count, i + self.layout.packets - expected)
-                while j < limit and (ids[j] & 0x0FFF) == expected + (j - i) \
-                        and (ids[j] & 0x0F00) != 0x0F00:
+                while j < limit and (ids[j] & NUMBER_MASK) == expected + (j - i) \
+                        and (ids[j] & DISCARD_MASK) != DISCARD_MASK:
                     j += 1
                 good = i
                 rows = self._rows

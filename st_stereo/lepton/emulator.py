@@ -9,9 +9,9 @@ stand-in of ``st_stereo.lepton.fakes``. Nothing in the driver knows it is not a 
 
 What a camera does (Lepton 2 datasheet behaviour, ``../shared/notes/lepton.md``):
 
-- core frames every 1 / 26.4 s of its own clock; every unique frame is sent three times; the
-  telemetry frame counter counts core frames (so copies carry new counts: only their pixels
-  show that they are copies); power-up telemetry is off until set over CCI;
+- core frames every ``1 / CORE_FRAME_HZ`` of its own clock; every unique frame is sent three
+  times; the telemetry frame counter counts core frames (so copies carry new counts: only
+  their pixels show that they are copies); power-up telemetry is off until set over CCI;
 - bytes leave the camera only when the host clocks them: the emulator puts one host transfer
   (``transfer_bytes``, the host's spidev ``bufsiz``) into the FIFO when the FIFO is empty, no
   faster than the SPI clock; the FIFO (16 KiB) holds a little over one frame;
@@ -59,11 +59,10 @@ import numpy as np
 
 from st_stereo.lepton.assembler import FrameLayout
 from st_stereo.lepton.fakes import pixels_digest, SentFrame
-from st_stereo.lepton.packets import (encode_frame_packets, make_discard_packet,
-                                      RAW14_PACKET_BYTES)
+from st_stereo.lepton.packets import (CORE_FRAME_HZ, encode_frame_packets,
+                                      make_discard_packet, RAW14_PACKET_BYTES)
 from st_stereo.lepton.telemetry import encode_telemetry_row_a
 
-CORE_HZ = 26.4
 PACKET = RAW14_PACKET_BYTES
 RESYNC_IDLE_S = 0.185
 F_SETPIPE_SZ = 1031
@@ -148,7 +147,7 @@ class _Camera:
         self.fd = fd
         self.records = records
         self.epoch = epoch
-        self.period = 1.0 / (CORE_HZ * (1.0 + config.drift_ppm * 1e-6))
+        self.period = 1.0 / (CORE_FRAME_HZ * (1.0 + config.drift_ppm * 1e-6))
         # One host transfer; never more than a frame (the reader asks for at most one frame,
         # and the FIFO holds a little over one).
         self.transfer_packets = min(63, max(1, config.transfer_bytes // PACKET))

@@ -24,6 +24,7 @@ from st_stereo.lepton.cci import (CMD_AGC_ENABLE, CMD_FPA_TEMPERATURE, CMD_PING,
                                   CMD_RUN_FFC, CMD_TELEMETRY_ENABLE, CMD_TELEMETRY_LOCATION, GET,
                                   REG_COMMAND, REG_DATA0, REG_DATA_LENGTH, REG_STATUS, RUN, SET,
                                   STATUS_BOOT_MODE, STATUS_BOOTED, STATUS_BUSY)
+from st_stereo.lepton.packets import CORE_FRAME_HZ
 
 
 class FakeCciRegisters:
@@ -230,11 +231,11 @@ class FakeV4L2Board:
     """
     A PureThermal board's V4L2 stream on the wall clock, in the calling process.
 
-    Core frames come every 1 / 26.4 s of the board's own clock (``phase_s``, ``drift_ppm``),
-    each unique frame three times, Y16 80x60 (80x63 with a telemetry footer). A read blocks
-    until the next frame; a reader that falls behind gets the newest frame (the UVC queue
-    drops the rest). ``unplug`` makes reads fail and new opens fail until ``replug``. Every
-    unique frame sent is recorded in ``sent`` (``SentFrame``: index, ready time, digest).
+    Core frames come every ``1 / CORE_FRAME_HZ`` of the board's own clock (``phase_s``,
+    ``drift_ppm``), each unique frame three times, Y16 80x60 (80x63 with a telemetry footer).
+    A read blocks until the next frame; a reader that falls behind gets the newest frame (the
+    UVC queue drops the rest). ``unplug`` makes reads fail and new opens fail until ``replug``.
+    Every unique frame sent is recorded in ``sent`` (``SentFrame``: index, ready time, digest).
     """
 
     def __init__(self, name, scene, phase_s=0.0, drift_ppm=0.0, footer=False):
@@ -243,7 +244,7 @@ class FakeV4L2Board:
         self._time = time
         self.name = name
         self.scene = scene
-        self.period = 1.0 / (26.4 * (1.0 + drift_ppm * 1e-6))
+        self.period = 1.0 / (CORE_FRAME_HZ * (1.0 + drift_ppm * 1e-6))
         self.epoch = time.monotonic() + phase_s
         self.footer = footer
         self.plugged = True

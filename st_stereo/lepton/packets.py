@@ -19,6 +19,14 @@ TELEMETRY_ROWS = 3
 DISCARD_MASK = 0x0F00
 NUMBER_MASK = 0x0FFF
 
+# Timing (../shared/notes/lepton.md): the core makes a frame about 26.4 times a second and
+# sends every unique frame three times, so unique frames come at just under 9 Hz.
+CORE_FRAME_HZ = 26.4
+COPIES_PER_UNIQUE_FRAME = 3
+CORE_FRAME_PERIOD_S = 1.0 / CORE_FRAME_HZ
+UNIQUE_FRAME_HZ = CORE_FRAME_HZ / COPIES_PER_UNIQUE_FRAME
+UNIQUE_FRAME_PERIOD_S = 1.0 / UNIQUE_FRAME_HZ
+
 
 def is_discard(packet_id):
     """Discard packets fill idle time: ``(id & 0x0F00) == 0x0F00``."""

@@ -177,7 +177,9 @@ class PureThermalReader:
 
     def read_frame(self, timeout_s=1.0):
         """Return the next new frame, or None for a copy (V4L2 reads block)."""
-        from st_stereo.lepton.reader import CORE_FRAME_PERIOD_S, first_copy_known, LeptonFrame
+        from st_stereo.lepton.packets import CORE_FRAME_PERIOD_S
+        from st_stereo.lepton.reader import count_new_frame, first_copy_known, in_ffc, \
+            LeptonFrame
         from st_stereo.lepton.telemetry import parse_telemetry_row_a
         pixels, rows = self.capture.read()
         stamp = time.monotonic()
@@ -187,16 +189,9 @@ class PureThermalReader:
         telemetry = None
         if rows is not None:
             telemetry = parse_telemetry_row_a(rows[0].astype('>u2').tobytes())
-        ffc = telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
-        counters.ffc_frames += ffc
-        kind = self.duplicates.classify(pixels)
-        if kind != 'unique':
-            if kind == 'duplicate':
-                counters.duplicates += 1
-            else:
-                counters.frozen += 1
+        ffc = in_ffc(telemetry)
+        if not count_new_frame(self.duplicates, counters, pixels, ffc):
             return None
-        counters.unique_frames += 1
         # A board that sends every core frame (copies too): the stamp is the first copy's only
         # when the frame before it was read one core period earlier. A board that sends only
         # unique frames: every stamp but the first is as good as V4L2 gives.

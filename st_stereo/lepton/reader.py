@@ -22,11 +22,10 @@ import dataclasses
 import numpy as np
 
 from st_stereo.lepton.assembler import FrameAssembler, FrameLayout, LeptonCounters
-from st_stereo.lepton.packets import packet_heads
+from st_stereo.lepton.packets import CORE_FRAME_PERIOD_S, packet_heads
 from st_stereo.lepton.telemetry import parse_telemetry_row_a
 
 RESYNC_IDLE_S = 0.2          # > 185 ms with /CS deasserted (datasheet)
-CORE_FRAME_PERIOD_S = 1.0 / 26.4
 
 
 class EndOfStream(Exception):
@@ -53,6 +52,30 @@ def first_copy_known(previous_stamp, stamp, period_s):
     """Whether a new unique frame at ``stamp`` follows a frame read one core period earlier."""
     return previous_stamp is not None and 0.5 * period_s < stamp - previous_stamp < \
         1.5 * period_s
+
+
+def in_ffc(telemetry):
+    """Whether a frame's telemetry (None without telemetry) says an FFC is imminent or running."""
+    return telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
+
+
+def count_new_frame(duplicates, counters, pixels, ffc):
+    """
+    Count an assembled frame in ``counters`` (LeptonCounters) and say whether it is new.
+
+    ``duplicates`` (a DuplicateFilter) tells a unique frame from a copy or an FFC freeze; each
+    is counted (``unique_frames``, ``duplicates``, ``frozen``), and every frame the camera
+    reports in FFC in ``ffc_frames``. Returns True for a unique frame, the only kind published.
+    """
+    counters.ffc_frames += bool(ffc)
+    kind = duplicates.classify(pixels)
+    if kind == 'duplicate':
+        counters.duplicates += 1
+    elif kind == 'frozen':
+        counters.frozen += 1
+    else:
+        counters.unique_frames += 1
+    return kind == 'unique'
 
 
 class DuplicateFilter:
@@ -198,17 +221,9 @@ class LeptonReader:
         telemetry = None
         if frame.telemetry_payloads:
             telemetry = parse_telemetry_row_a(frame.telemetry_payloads[0])
-        ffc = telemetry is not None and telemetry.ffc_state in ('imminent', 'in_progress')
-        if ffc:
-            self.counters.ffc_frames += 1      # every frame the camera reports in FFC
-        kind = self.duplicates.classify(frame.pixels)
-        if kind == 'duplicate':
-            self.counters.duplicates += 1
+        ffc = in_ffc(telemetry)
+        if not count_new_frame(self.duplicates, self.counters, frame.pixels, ffc):
             return None
-        if kind == 'frozen':
-            self.counters.frozen += 1
-            return None
-        self.counters.unique_frames += 1
         out = LeptonFrame(frame.pixels, frame.stamp, self._unique_index, telemetry, ffc,
                           frame.segment, first_copy_known(previous, frame.stamp,
                                                           CORE_FRAME_PERIOD_S))

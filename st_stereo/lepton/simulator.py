@@ -21,8 +21,8 @@ import dataclasses
 import numpy as np
 
 from st_stereo.lepton.assembler import FrameLayout
-from st_stereo.lepton.packets import (encode_frame_packets, make_discard_packet, make_packet,
-                                      PAYLOAD_BYTES, RAW14_PACKET_BYTES)
+from st_stereo.lepton.packets import (CORE_FRAME_HZ, encode_frame_packets, make_discard_packet,
+                                      make_packet, PAYLOAD_BYTES, RAW14_PACKET_BYTES)
 from st_stereo.lepton.telemetry import encode_telemetry_row_a
 
 RESYNC_MIN_IDLE_S = 0.185
@@ -137,7 +137,7 @@ class LeptonSimulator:
 
     packet_bytes = RAW14_PACKET_BYTES
 
-    def __init__(self, source, telemetry='off', agc=False, core_hz=26.4, drift_ppm=0.0,
+    def __init__(self, source, telemetry='off', agc=False, core_hz=CORE_FRAME_HZ, drift_ppm=0.0,
                  phase_s=0.0, spi_hz=20e6, faults=None, seed=0, boot_s=1.0,
                  max_read_bytes=4096, serial=0x1234, keep_intended=True):
         self.source = source

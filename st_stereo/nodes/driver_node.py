@@ -29,7 +29,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
@@ -37,6 +36,7 @@ from st_stereo.core.camera_calibration import calibration_from_camera_info, \
     load_calibration, save_calibration
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError
+from st_stereo.lepton.packets import UNIQUE_FRAME_HZ
 from st_stereo.lepton.pairing import pair_info_values, PairSynchronizer, SKEW_KEY
 from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
@@ -44,13 +44,11 @@ from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import DEPRECATED_DRIVER_PARAMETERS, DRIVER_PARAMETERS, \
     SIDES
 from st_stereo.nodes.parameters import declare_node_parameters
-from st_stereo.nodes.runtime import spin_node, with_default_namespace
+from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
 from st_stereo.package_data import resolve_url
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-UNIQUE_HZ = 26.4 / 3
 LIVE_SOURCES = ('spi', 'purethermal')
 
 
@@ -97,8 +95,8 @@ class DriverNode(Node):
                 SetCameraInfo, f'{side}/set_camera_info',
                 lambda request, response, i=index: self._set_camera_info(i, request, response))
         self.pairing = PairSynchronizer(self.max_delta, min_period=0.1)
-        self.frequency = diagnostics.FrequencyTracker(UNIQUE_HZ)
-        self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_HZ) for _ in SIDES]
+        self.frequency = diagnostics.FrequencyTracker(UNIQUE_FRAME_HZ)
+        self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_FRAME_HZ) for _ in SIDES]
         self.recent_skews = collections.deque(maxlen=256)
         self.inexact_drops = [0, 0]
         self._lost_reported = [0, 0]

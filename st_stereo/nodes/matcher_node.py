@@ -16,7 +16,7 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.matcher import StereoMatcher
@@ -27,11 +27,9 @@ from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import MATCHER_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters, declare_st_parameters, \
     validate_changes
-from st_stereo.nodes.runtime import spin_node, with_default_namespace
+from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact
 from stereo_msgs.msg import DisparityImage
-
-RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def data_mask(msg, image):

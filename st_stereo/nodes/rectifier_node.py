@@ -13,7 +13,7 @@ no distortion) are still published for one release, deprecated.
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -23,10 +23,8 @@ from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import RECTIFIER_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters
-from st_stereo.nodes.runtime import spin_node, with_default_namespace
+from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact
-
-RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class RectifierNode(Node):

@@ -2,9 +2,14 @@
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 # Topics are relative: by default they live under this namespace (``-r __ns:=/x`` moves them).
 DEFAULT_NAMESPACE = 'stereo'
+
+# What the suite's nodes publish with (images, camera_info, pair_info, points2, disparity):
+# reliable, keep the last 5; every publisher also accepts qos_overrides (README).
+RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def with_default_namespace(kwargs):

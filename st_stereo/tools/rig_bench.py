@@ -23,8 +23,7 @@ import time
 import numpy as np
 
 from st_stereo.lepton.emulator import CameraConfig, pixels_digest, RigEmulator
-
-UNIQUE_PERIOD_S = 3 / 26.4
+from st_stereo.lepton.packets import UNIQUE_FRAME_PERIOD_S
 
 
 @dataclasses.dataclass
@@ -287,7 +286,7 @@ def crc_policy_on_emulator(seconds, rate, policy, bufsiz=65536):
             'frames dropped on CRC': reader.counters.crc_frames_dropped}
 
 
-def no_pair_share(max_delta_s, period_s=UNIQUE_PERIOD_S):
+def no_pair_share(max_delta_s, period_s=UNIQUE_FRAME_PERIOD_S):
     """
     Share of time two free-running cameras give no pair, for a pairing window ``max_delta_s``.
 
@@ -335,7 +334,7 @@ def command_rig_bench(args):
     print('|---|---|---|')
     for delta in (0.03, 0.04, 0.05, 0.057):
         print(f'| {delta * 1e3:.0f} | {no_pair_share(delta):.1%} | '
-              f'{min(delta, UNIQUE_PERIOD_S / 2) * 1e3:.1f} |')
+              f'{min(delta, UNIQUE_FRAME_PERIOD_S / 2) * 1e3:.1f} |')
     return 0
 
 
