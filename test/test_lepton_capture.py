@@ -6,22 +6,31 @@ import numpy as np
 import pytest
 from st_stereo.cli import main
 from st_stereo.lepton.capture import CaptureError, decode_capture, detect_telemetry_mode, \
-    MAGIC, read_capture
+    MAGIC, read_capture, record_camera
 from st_stereo.lepton.faultbench import score_decoded, write_plain_byte_capture
-from st_stereo.lepton.simulator import FaultPlan
+from st_stereo.lepton.simulator import FaultPlan, LeptonSimulator, SyntheticSceneSource
 from st_stereo.lepton.tools import simulate_capture
 
 
 def test_replay_reproduces_the_live_reader(tmp_path):
+    # The replayed frames are frames the camera meant to send (its own record, not the
+    # reader's), and the replay counts what the live reader counted.
     path = tmp_path / 'c.stcap'
     faults = FaultPlan({'crc': 0.03, 'missing': 0.03, 'misalign': 0.02})
-    live = simulate_capture(path, 12.0, 'footer', faults, seed=4)
+    camera = LeptonSimulator(SyntheticSceneSource(4), telemetry='footer', faults=faults, seed=4,
+                             phase_s=0.011)
+    live = record_camera(camera, path, 12.0, 'footer')
     frames, replayed, mode = decode_capture(path)
     assert mode == 'footer'
     assert replayed.pop('bytes_skipped_realigning') == 0   # recorded reads keep alignment
     assert replayed.pop('capture_bytes_damaged') == 0
     assert replayed == live
     assert len(frames) == live['unique_frames'] and live['crc_errors'] > 0
+    sent = {pixels.tobytes(): index for index, pixels in camera.intended.items()}
+    indices = [sent.get(frame.pixels.tobytes()) for frame in frames]
+    assert None not in indices, 'a replayed frame is not one the camera sent'
+    assert indices == sorted(set(indices)), 'frames replayed twice or out of order'
+    assert len(indices) > 0.8 * len(sent)
     stamps = [f.stamp for f in frames]
     assert stamps == sorted(stamps) and stamps[0] > 0
 

@@ -12,7 +12,11 @@ def test_spidev_buffer_and_read_size(tmp_path):
     path.write_text('65536\n')
     assert spidev_buffer_size(path) == 65536
     assert spidev_buffer_size(tmp_path / 'missing') == 4096
-    assert read_size_for(4096) == 24 * 164
+    # A read is whole packets (a packet split across reads is lost to the assembler) and as
+    # large as the kernel buffer allows (each read costs a system call and a chip select).
+    for buffer_bytes in (164, 4096, 65536, 164 * 30 + 163):
+        size = read_size_for(buffer_bytes)
+        assert size % 164 == 0 and 0 < size <= buffer_bytes < size + 164
     with pytest.raises(ValueError, match='raise the spidev bufsiz'):
         read_size_for(100)
 

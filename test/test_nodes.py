@@ -166,30 +166,48 @@ def test_cloud_layout(ros):
     values = point_cloud_array(point_cloud(Header(), np.ones((2, 3)), np.ones(2), np.ones(2),
                                            np.ones(2), np.array([0.25, 0.75])))
     assert values[:, -1].tolist() == [0.25, 0.75]
-    assert not hasattr(Image, 'nonexistent')
 
 
+def call_service(executor, client, request, timeout_s=30.0):
+    """Call a ROS service through its client and return the response (spinning meanwhile)."""
+    assert client.wait_for_service(timeout_sec=timeout_s), f'{client.srv_name}: no service'
+    future = client.call_async(request)
+    spin_until(executor, future.done, timeout_s)
+    assert future.done(), f'{client.srv_name}: no response in {timeout_s} s'
+    return future.result()
+
+
+@pytest.mark.timeout(180)
 def test_services_trigger_ffc_and_set_camera_info(ros, tmp_path):
+    # Through the driver's ROS services, as a user's `ros2 service call` reaches them: a
+    # service left unregistered, renamed, or answering with the wrong type fails here.
     from sensor_msgs.srv import SetCameraInfo
-    from st_stereo.core.camera_calibration import load_calibration
+    from st_stereo.core.camera_calibration import (calibration_from_camera_info,
+                                                   load_calibration, save_calibration)
     from std_srvs.srv import Trigger
     context, executor, add = ros
     target = tmp_path / 'left.yaml'
-    driver = add(DriverNode(context=context))
-    response = driver._trigger_ffc(Trigger.Request(), Trigger.Response())
+    save_calibration(calibration_from_camera_info(_info(80, 60, 0.0), 'left'), target)
+    assert load_calibration(target).camera_matrix[0, 0] != 85.0
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('left.camera_info_url', value=f'file://{target}')]))
+    client_node = add(Node('service_client', context=context, namespace='stereo'))
+    ffc = client_node.create_client(Trigger, 'trigger_ffc')
+    response = call_service(executor, ffc, Trigger.Request())
     assert response.success and 'FFC started' in response.message
-    # SetCameraInfo writes camera_calibration YAML to a file:// URL and is used at once.
-    driver.info_urls[0] = f'file://{target}'
+    # SetCameraInfo writes camera_calibration YAML to the camera_info_url and is used at once.
+    set_info = client_node.create_client(SetCameraInfo, 'left/set_camera_info')
     request = SetCameraInfo.Request()
     request.camera_info = _info(80, 60, 0.0)
     request.camera_info.k[0] = 85.0
-    response = driver._set_camera_info(0, request, SetCameraInfo.Response())
+    response = call_service(executor, set_info, request)
     assert response.success, response.status_message
     assert load_calibration(target).camera_matrix[0, 0] == 85.0
     assert driver.calibrations[0].camera_matrix[0, 0] == 85.0
     request.camera_info.width = 160
-    response = driver._set_camera_info(0, request, SetCameraInfo.Response())
+    response = call_service(executor, set_info, request)
     assert not response.success and '160x60' in response.status_message
+    assert driver.calibrations[0].camera_matrix[0, 0] == 85.0
 
 
 @pytest.mark.timeout(180)

@@ -143,13 +143,20 @@ class PairSynchronizer:
         return StereoPair(left, right, 0.5 * (left.stamp + right.stamp), skew)
 
     def flush(self):
-        """Drop what is left (end of stream); returns the number of frames dropped."""
-        dropped = len(self.queues['left']) + len(self.queues['right'])
+        """
+        End of stream: return the pairs still waiting for a frame that will not come.
+
+        A head whose partner could still have been beaten by a nearer frame is paired now
+        (nothing nearer can arrive); what is left unpaired is dropped and counted.
+        """
+        seen, self._last = self._last, {'left': math.inf, 'right': math.inf}
+        pairs = self._drain()
+        self._last = seen
         self.counters.dropped_left += len(self.queues['left'])
         self.counters.dropped_right += len(self.queues['right'])
         self.queues['left'].clear()
         self.queues['right'].clear()
-        return dropped
+        return pairs
 
 
 # --- pair_info: what a pair says about its two acquisitions -------------------------------------
