@@ -25,6 +25,8 @@ from rclpy.qos import qos_profile_sensor_data
 from ros_helpers import new_context
 from sensor_msgs.msg import Image
 
+pytestmark = pytest.mark.slow
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SITE_PACKAGES = next(pathlib.Path(p) for p in sys.path if p.endswith('site-packages') and
                      pathlib.Path(p, 'rclpy').is_dir())

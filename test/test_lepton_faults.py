@@ -15,6 +15,8 @@ from st_stereo.lepton.reader import LeptonReader
 from st_stereo.lepton.simulator import FAULT_KINDS, FaultPlan, LeptonSimulator, \
     SyntheticSceneSource
 
+pytestmark = pytest.mark.slow
+
 SIMULATED_S = 60.0
 # Which counter each fault kind must show up in, one count per delivered fault.
 EXPECTED_COUNTER = {'crc': 'crc_errors', 'payload': 'crc_errors', 'id': 'gaps',

@@ -28,6 +28,8 @@ from st_stereo.nodes.rectifier_node import RectifierNode
 from st_stereo.tools.rig_bench import RigSubscriber, spi_parameters, SteppingClock
 from std_srvs.srv import Trigger
 
+pytestmark = pytest.mark.slow
+
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 RUN_S = 20.0
 # Two modes. By default (CI) these tests check behaviour on real time: every image was sent,

@@ -11,6 +11,8 @@ from st_stereo.lepton.pairing import PairSynchronizer
 from st_stereo.lepton.reader import LeptonReader
 from st_stereo.lepton.simulator import FaultPlan, LeptonSimulator, SyntheticSceneSource
 
+pytestmark = pytest.mark.slow
+
 HOUR_S = 3600.0
 RARE_FAULTS = {'crc': 0.001, 'missing': 0.0005, 'misalign': 0.0005, 'stall': 0.0002}
 
