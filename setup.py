@@ -33,14 +33,14 @@ setup(
     entry_points={
         'console_scripts': [
             'st-stereo = st_stereo.cli:main',
-            'st-stereo-suite = st_stereo.nodes.pipeline:run_suite',
+            'st-stereo-suite = st_stereo.tools.main_job:run_suite',
             'lepton_driver = st_stereo.nodes.driver_node:main',
             'rectifier = st_stereo.nodes.rectifier_node:main',
             'matcher = st_stereo.nodes.matcher_node:main',
             'stereo_pipeline = st_stereo.nodes.pipeline:main',
             'bag_record = st_stereo.nodes.bags:record_main',
             'bag_play = st_stereo.nodes.bags:play_main',
-            'st-stereo-latency = st_stereo.nodes.latency_bench:main',
+            'st-stereo-latency = st_stereo.tools.latency_bench:main',
         ],
     },
 )

@@ -51,7 +51,7 @@ def write_seeds(target, folder):
         import numpy as np
         from st_stereo.lepton.capture import CaptureWriter, valid_packet_starts
         from st_stereo.lepton.simulator import FaultPlan
-        from st_stereo.lepton.tools import simulate_capture
+        from st_stereo.lepton.cli import simulate_capture
         with tempfile.TemporaryDirectory() as work:
             for index, mode in enumerate(('off', 'footer', 'header')):
                 path = pathlib.Path(work) / f'seed{index}'

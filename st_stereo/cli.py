@@ -440,9 +440,9 @@ def build_parser():
     _add_config_option(p)
     p.set_defaults(handler=command_bench)
 
-    from st_stereo.lepton.tools import add_parser as add_lepton_parser
+    from st_stereo.lepton.cli import add_parser as add_lepton_parser
     add_lepton_parser(sub)
-    from st_stereo.sim.tools import add_parser as add_sim_parser
+    from st_stereo.sim.cli import add_parser as add_sim_parser
     add_sim_parser(sub)
     from st_stereo.tools.calibrate import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)

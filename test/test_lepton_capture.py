@@ -7,9 +7,9 @@ import pytest
 from st_stereo.cli import main
 from st_stereo.lepton.capture import CaptureError, decode_capture, detect_telemetry_mode, \
     MAGIC, read_capture, record_camera
+from st_stereo.lepton.cli import simulate_capture
 from st_stereo.lepton.faultbench import score_decoded, write_plain_byte_capture
 from st_stereo.lepton.simulator import FaultPlan, LeptonSimulator, SyntheticSceneSource
-from st_stereo.lepton.tools import simulate_capture
 
 
 def test_replay_reproduces_the_live_reader(tmp_path):

@@ -216,7 +216,7 @@ def test_driver_replays_plain_byte_captures_in_the_mode_their_data_show(ros, tmp
     # parameter (default off) does not apply to a capture; the mode is detected, and every
     # published image is a frame the camera sent (the default 'off' made them all corrupt).
     from st_stereo.lepton.capture import decode_capture
-    from st_stereo.lepton.tools import simulate_capture
+    from st_stereo.lepton.cli import simulate_capture
     paths, sent = [], set()
     for side, seed in (('left', 1), ('right', 2)):
         full = tmp_path / f'{side}_full.bin'

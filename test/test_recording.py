@@ -158,7 +158,7 @@ def test_the_main_job_runs_the_suite_on_the_bundled_recording():
                        ROS_DOMAIN_ID=str(os.environ.get('ROS_DOMAIN_ID', '61')),
                        PYTHONPATH=str(REPO))
     done = subprocess.run([sys.executable, '-c',
-                           'import sys; from st_stereo.nodes.pipeline import run_suite; '
+                           'import sys; from st_stereo.tools.main_job import run_suite; '
                            'sys.exit(run_suite())'],
                           capture_output=True, text=True, timeout=170, env=environment)
     assert done.returncode == 0, done.stdout + done.stderr

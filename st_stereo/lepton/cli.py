@@ -1,5 +1,5 @@
 """
-Command-line tools of the Lepton layer: simulate a capture, decode a capture, benchmark.
+The Lepton layer's command line (``st-stereo lepton``): simulate, decode, benchmark captures.
 
 ``st-stereo lepton simulate`` writes a raw capture of one simulated camera (optionally with
 faults); ``st-stereo lepton decode`` turns any capture (ours, or plain concatenated SPI bytes)

@@ -1,5 +1,5 @@
 """
-Command-line tools of the simulated rig: ``st-stereo sim list | record | render``.
+The simulated rig's command line: ``st-stereo sim list | record | render``.
 
 ``record`` writes a recording directory (rosbag2 + calibration + ground truth); the bundled
 default recording is regenerated with
