@@ -217,6 +217,29 @@ def runner_up_similarity(volume, valid, searchable, best, y, x, exclusion=1):
     return np.where(rivals.any(axis=0), scores.max(axis=0), np.inf)
 
 
+def drop_less_similar_of_conflicts(y, position, similarity, conflict):
+    """
+    Resolve conflicts between row neighbours by dropping the less similar match, repeatedly.
+
+    Matches are sorted by (row, ``position``); ``conflict(first, second)`` says, for index
+    arrays of consecutive kept matches of one row, which pairs conflict. The less similar of
+    each conflicting pair is dropped and the neighbours are looked at again, until no pair
+    conflicts (the constraints of paper section 2.3). Returns the bool mask of kept matches.
+    """
+    keep = np.ones(len(y), dtype=bool)
+    order = np.lexsort((position, y))
+    while True:
+        idx = order[keep[order]]
+        if len(idx) < 2:
+            return keep
+        first, second = idx[:-1], idx[1:]
+        clash = (y[second] == y[first]) & conflict(first, second)
+        if not clash.any():
+            return keep
+        first, second = first[clash], second[clash]
+        keep[np.where(similarity[first] < similarity[second], first, second)] = False
+
+
 def enforce_uniqueness(y, x_left, x_right, similarity, tolerance):
     """
     One-to-one matching: a right point serves at most one left feature (paper 2.3).
@@ -231,19 +254,9 @@ def enforce_uniqueness(y, x_left, x_right, similarity, tolerance):
     ndarray of bool, the matches kept
 
     """
-    keep = np.ones(len(y), dtype=bool)
-    order = np.lexsort((x_right, y))
-    while True:
-        idx = order[keep[order]]
-        if len(idx) < 2:
-            return keep
-        collide = ((y[idx[1:]] == y[idx[:-1]])
-                   & (np.abs(x_right[idx[1:]] - x_right[idx[:-1]]) < tolerance))
-        if not collide.any():
-            return keep
-        first, second = idx[:-1][collide], idx[1:][collide]
-        loser = np.where(similarity[first] < similarity[second], first, second)
-        keep[loser] = False
+    return drop_less_similar_of_conflicts(
+        y, x_right, similarity,
+        lambda first, second: np.abs(x_right[second] - x_right[first]) < tolerance)
 
 
 def left_right_consistent(volume, valid_left, disparities, y, x_right, disparity, tolerance):
@@ -279,19 +292,8 @@ def ordering_consistent(y, x_left, x_right, similarity):
     ndarray of bool, the matches kept
 
     """
-    keep = np.ones(len(y), dtype=bool)
-    order = np.lexsort((x_left, y))
-    while True:
-        idx = order[keep[order]]
-        if len(idx) < 2:
-            return keep
-        same_row = y[idx[1:]] == y[idx[:-1]]
-        inverted = same_row & (x_right[idx[1:]] < x_right[idx[:-1]])
-        if not inverted.any():
-            return keep
-        first, second = idx[:-1][inverted], idx[1:][inverted]
-        loser = np.where(similarity[first] < similarity[second], first, second)
-        keep[loser] = False
+    return drop_less_similar_of_conflicts(
+        y, x_left, similarity, lambda first, second: x_right[second] < x_right[first])
 
 
 def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_neighbours):
