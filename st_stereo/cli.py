@@ -24,6 +24,14 @@ def _add_config_option(parser):
                         help='set an ST parameter (repeatable; list: st-stereo params)')
 
 
+def _add_sequence_options(parser, sequences, stride):
+    """Add the options every evaluation over the simulated sequences takes."""
+    parser.add_argument('--sequences', default=sequences)
+    parser.add_argument('--stride', type=int, default=stride, help='score every N-th frame')
+    parser.add_argument('--max-frames', type=int, default=None,
+                        help='frames per sequence (cap)')
+
+
 def _allowed_values(kind, meta):
     if meta['choices']:
         return ' / '.join(meta['choices'])
@@ -376,9 +384,7 @@ def build_parser():
     e.set_defaults(handler=command_eval_features)
     e = eval_sub.add_parser('pipeline', help='paper Table 2: 3-D against ground truth, ST vs '
                             'ORB + KNN vs StereoSGBM on simulated sequences')
-    e.add_argument('--sequences', default='walk_across,two_people,sit_down')
-    e.add_argument('--stride', type=int, default=2, help='score every N-th frame')
-    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
+    _add_sequence_options(e, 'walk_across,two_people,sit_down', 2)
     e.add_argument('--plot', help='box plots of the depth errors (PNG)')
     e.add_argument('--json', help='write the table as JSON')
     e.add_argument('--strict', action='store_true',
@@ -388,9 +394,7 @@ def build_parser():
     e.set_defaults(handler=command_eval_pipeline)
     e = eval_sub.add_parser('points', help='every published point scored per surface '
                             '(3-D, strict, disparity range) on the sequences and the recording')
-    e.add_argument('--sequences', default='walk_across,two_people,sit_down,meeting_room')
-    e.add_argument('--stride', type=int, default=2, help='score every N-th frame')
-    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
+    _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 2)
     e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
     e.add_argument('--strict', action='store_true',
                    help="exit 1 when one of the issue's criteria is not met")
@@ -399,11 +403,9 @@ def build_parser():
     e.set_defaults(handler=command_eval_points)
     e = eval_sub.add_parser('skew', help='camera skew: disparity errors on moving people '
                             'without and with compensation, by skew and image speed')
-    e.add_argument('--sequences', default='walk_across,two_people,sit_down,meeting_room')
+    _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 4)
     e.add_argument('--skews', default=','.join(f'{s:g}' for s in (-55, -25, 10, 25, 40, 55)),
                    help='skews t_right - t_left, milliseconds')
-    e.add_argument('--stride', type=int, default=4, help='score every N-th frame')
-    e.add_argument('--max-frames', type=int, default=None, help='frames per sequence (cap)')
     e.add_argument('--quiet', action='store_true')
     _add_config_option(e)
     e.set_defaults(handler=command_eval_skew)
