@@ -12,7 +12,7 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from ros_helpers import new_context
+from ros_helpers import new_context, ros_nodes
 from rosbag2_layouts import Offered, Topic, write_bag
 from sensor_msgs.msg import Image
 from st_stereo.nodes.bags import BagPlayer, play_main
@@ -48,37 +48,32 @@ def replay(bag, expected, timeout_s=15.0):
     reliable, like the recorded publishers. Playback starts once every publisher and
     subscription have matched, and ends when all expected messages arrived (or the timeout).
     """
-    context, executor = new_context()
-    listener = Node('layout_listener', context=context)
-    received = {topic: [] for topic in expected}
-    subscriptions = [
-        listener.create_subscription(type(messages[0]), topic,
-                                     lambda msg, t=topic: received[t].append(msg),
-                                     QoSProfile(depth=100,
-                                                reliability=ReliabilityPolicy.RELIABLE))
-        for topic, messages in expected.items()]
-    player = BagPlayer(bag, rate=10.0, context=context)   # 10 ms apart
-    for node in (listener, player):
-        executor.add_node(node)
-    publishers = {p.topic_name: p for p in player.publishers_by_id.values()}
-    try:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and not (
-                all(s.get_publisher_count() for s in subscriptions) and
-                all(publishers[t].get_subscription_count() for t in expected
-                    if t in publishers)):
-            executor.spin_once(timeout_sec=0.02)
-        player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
-        while time.monotonic() < deadline and any(
-                len(received[t]) < len(m) for t, m in expected.items()):
-            executor.spin_once(timeout_sec=0.02)
-        executor.spin_once(timeout_sec=0.05)        # nothing more may come
-        return received, player
-    finally:
-        player.close()
-        for node in (listener, player):
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('layout_listener', context=context))
+        received = {topic: [] for topic in expected}
+        subscriptions = [
+            listener.create_subscription(type(messages[0]), topic,
+                                         lambda msg, t=topic: received[t].append(msg),
+                                         QoSProfile(depth=100,
+                                                    reliability=ReliabilityPolicy.RELIABLE))
+            for topic, messages in expected.items()]
+        player = add(BagPlayer(bag, rate=10.0, context=context))   # 10 ms apart
+        publishers = {p.topic_name: p for p in player.publishers_by_id.values()}
+        try:
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline and not (
+                    all(s.get_publisher_count() for s in subscriptions) and
+                    all(publishers[t].get_subscription_count() for t in expected
+                        if t in publishers)):
+                executor.spin_once(timeout_sec=0.02)
+            player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
+            while time.monotonic() < deadline and any(
+                    len(received[t]) < len(m) for t, m in expected.items()):
+                executor.spin_once(timeout_sec=0.02)
+            executor.spin_once(timeout_sec=0.05)        # nothing more may come
+            return received, player
+        finally:
+            player.close()
 
 
 def expect(topics):

@@ -9,7 +9,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
-from ros_helpers import Clouds, new_context, replay_through_matcher, spin_for, \
+from ros_helpers import Clouds, new_context, replay_through_matcher, ros_nodes, spin_for, \
     spin_until_finished
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
@@ -173,23 +173,19 @@ def talker_copy(tmp_path, replace=()):
 def play_to_subscriber(bag, topics=None):
     """Play a bag through BagPlayer to a real rclpy subscriber of /topic; returns the data."""
     from std_msgs.msg import String
-    context, executor = new_context()
-    listener = Node('listener', context=context)
-    received = []
-    listener.create_subscription(String, '/topic', lambda msg: received.append(msg.data), 20)
-    player = BagPlayer(bag, rate=10.0, topics=topics, context=context)
-    for node in (listener, player):
-        executor.add_node(node)
-    try:
-        spin_for(executor, 1.0)
-        player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
-        spin_for(executor, 0.5)
-        return received, player
-    finally:
-        player.close()
-        for node in (listener, player):
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('listener', context=context))
+        received = []
+        listener.create_subscription(String, '/topic', lambda msg: received.append(msg.data),
+                                     20)
+        player = add(BagPlayer(bag, rate=10.0, topics=topics, context=context))
+        try:
+            spin_for(executor, 1.0)
+            player.play(spin=lambda s: executor.spin_once(timeout_sec=s))
+            spin_for(executor, 0.5)
+            return received, player
+        finally:
+            player.close()
 
 
 def test_the_v4_mcap_talker_bag_ros2_bag_wrote_replays_all_its_messages():
