@@ -254,3 +254,38 @@ def test_a_cool_box_keeps_its_own_edge_features():
         # ... and the kept ones include features the check did re-measure.
         position, contrast, _ = edge_position(left, result.y[correct], result.x_left[correct])
         assert cool_side_features(position, contrast).sum() > 10
+
+
+def test_a_side_window_that_finds_another_disparity_rejects_its_match(people_80x60,
+                                                                      lepton_frame):
+    # The check's rule on real frames moved by a known shift (every match right): started at
+    # the match's own disparity the side windows agree and nothing is rejected; told a
+    # disparity 3 px off, the measured sides disagree and their matches go.
+    from st_stereo.core.matcher import depth_edge_rejects
+    config = STConfig()
+    for frame in (people_80x60, lepton_frame.astype(np.float64)):
+        left, right = shifted_pair(frame, 6.7)
+        result = StereoMatcher(config).match(left, right)
+        everything = np.ones(len(result), dtype=bool)
+        kept, _ = depth_edge_rejects(left, right, result.y, result.x_left, result.disparity,
+                                     everything, config)
+        off, unchecked = depth_edge_rejects(left, right, result.y, result.x_left,
+                                            result.disparity + 3.0, everything, config)
+        assert kept.sum() == 0
+        assert off.sum() > 50 and off.sum() + unchecked <= len(result)
+
+
+@pytest.mark.parametrize('poc_source', ['intensity', 'moments'])
+def test_the_depth_edge_check_never_measures_pixels_without_data(lepton_frame, poc_source):
+    # A rectified pair's invalid border (8 columns here) is filled with its nearest values;
+    # a side window reaching into it would disagree with a right match. On a pure shift no
+    # match may be rejected for it, with either POC source; the sides left unmeasured are
+    # counted instead.
+    valid = np.ones(lepton_frame.shape, dtype=bool)
+    valid[:, :8] = False
+    config = STConfig(poc_source=poc_source)
+    for shift in (3.2, 6.7, 9.5, 14.1):
+        left, right = shifted_pair(lepton_frame, shift)
+        result = StereoMatcher(config).match(left, right, left_valid=valid, right_valid=valid)
+        assert result.counts['rejected_depth_edge'] == 0, shift
+        assert result.counts['depth_edge_unchecked'] > 0

@@ -280,15 +280,15 @@ class StereoMatcher:
         keep &= ~unconfident
         edge_tick = time.perf_counter()
         if config.depth_edge_check:
-            beside_edge, unchecked = depth_edge_rejects(left, poc_left, poc_right, rough.y,
-                                                        rough.x_left, refined.disparity, keep,
-                                                        config)
+            beside_edge, unchecked = depth_edge_rejects(left, right, rough.y, rough.x_left,
+                                                        refined.disparity, keep, config,
+                                                        left_inside, right_inside)
             counts['rejected_depth_edge'] = int(beside_edge.sum())
             counts['depth_edge_unchecked'] = unchecked
             keep &= ~beside_edge
         else:
             counts['rejected_depth_edge'] = counts['depth_edge_unchecked'] = 0
-        timings['depth_edges'] = _elapsed_ms(edge_tick)
+        depth_edges_ms = _elapsed_ms(edge_tick)
         if config.uniqueness:
             unique = enforce_uniqueness(rough.y[keep], rough.x_left[keep],
                                         rough.x_left[keep] - refined.disparity[keep],
@@ -298,7 +298,8 @@ class StereoMatcher:
         else:
             counts['rejected_uniqueness'] = 0
         counts['matches'] = int(keep.sum())
-        timings['subpixel'] = _elapsed_ms(tick) - timings['depth_edges']
+        timings['subpixel'] = _elapsed_ms(tick) - depth_edges_ms
+        timings['depth_edges'] = depth_edges_ms
 
         tick = time.perf_counter()
         x_left, y = rough.x_left[keep], rough.y[keep]
@@ -315,37 +316,45 @@ class StereoMatcher:
                            confidence=confidence[keep])
 
 
-def depth_edge_rejects(intensity, poc_left, poc_right, y, x_left, disparity, candidates,
-                       config):
+def depth_edge_rejects(left, right, y, x_left, disparity, candidates, config,
+                       left_inside=None, right_inside=None):
     """
     Find the matches beside a depth edge whose own side does not carry their disparity.
 
-    Of the ``candidates``, those on the cool side of a strong edge (``edge_position``,
-    ``cool_side_features``) are re-measured by POC (eqs. 10-17) with a window moved into their
-    own side (``side_window_centres``) and started at their integer disparity; a match is
-    rejected when that window fails or disagrees by more than ``depth_edge_tolerance``
-    (``st_stereo.core.depth_edges``). A side whose right window would start left of the
-    right image cannot be measured: the match is kept and counted as unchecked. Returns the
-    bool mask of rejects over all matches and the number unchecked.
+    Of the ``candidates``, those on the cool side of a strong edge of the intensity image
+    ``left`` (``edge_position``, ``cool_side_features``) are re-measured by POC (eqs. 10-17) on
+    the intensity images with a window moved into their own side (``side_window_centres``)
+    and started at their integer disparity; a match is rejected when that window fails or
+    disagrees by more than ``depth_edge_tolerance`` (``st_stereo.core.depth_edges``). A side
+    that cannot be measured (the right window not wholly in the image, a window reaching
+    pixels without data per ``left_inside`` / ``right_inside``, a centre the image border
+    pushed back) keeps its match and is counted. Returns the bool mask of rejects over all
+    matches and the number unchecked.
     """
     rejects = np.zeros(len(y), dtype=bool)
     index = np.flatnonzero(candidates)
     if not len(index):
         return rejects, 0
-    position, contrast, normal = edge_position(intensity, y[index], x_left[index])
+    position, contrast, normal = edge_position(left, y[index], x_left[index])
     cool = cool_side_features(position, contrast)
     index, normal = index[cool], normal[cool]
     if not len(index):
         return rejects, 0
     half = config.poc_window // 2
-    side_y, side_x = side_window_centres(y[index], x_left[index], normal, intensity.shape, half)
+    side_y, side_x, measurable = side_window_centres(y[index], x_left[index], normal,
+                                                     left.shape, half)
     start = np.rint(disparity[index]).astype(int)
-    reachable = side_x - start >= 0
-    index = index[reachable]
-    side = refine_subpixel_poc(poc_left, poc_right, side_y[reachable], side_x[reachable],
-                               start[reachable], config)
+    side_x_right = side_x - start
+    measurable &= side_x_right >= half
+    if left_inside is not None:
+        measurable &= left_inside[side_y, side_x]
+    if right_inside is not None:
+        measurable &= right_inside[side_y, np.clip(side_x_right, 0, left.shape[1] - 1)]
+    index = index[measurable]
+    side = refine_subpixel_poc(left, right, side_y[measurable], side_x[measurable],
+                               start[measurable], config)
     rejects[index[~side_agrees(side, disparity[index], config.depth_edge_tolerance)]] = True
-    return rejects, int((~reachable).sum())
+    return rejects, int((~measurable).sum())
 
 
 DISTINCTIVENESS_SCALE = 0.1
