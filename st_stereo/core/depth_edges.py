@@ -34,7 +34,7 @@ A 9 x 9 window of weak texture cannot always prove its own disparity, and on a p
 (the sub-pixel protocol of docs/accuracy.md) the same test rejects correct matches in flat
 regions beside edges. The tolerance and the unchecked rule were chosen so that the protocol
 stays within 0.5 points of the matcher without the check (panel frame, shifts of 0.25 px: a
-0.5 px tolerance that also rejected unmeasurable sides lost 0.83 points, 1 px 0.31); on a
+0.5 px tolerance that also rejected unmeasurable sides lost 0.83 points, 1 px 0.14); on a
 warm box in front of a wall (test_trusted_points.py) 86 % of the wall matches that carried
 the box's disparity are then removed, not all. Asking more of the side window (its peak the
 highest over the whole disparity range, by a margin) removed more of them there but,
