@@ -113,3 +113,24 @@ def test_a_rendered_room_without_people_keeps_every_point_exactly():
             np.testing.assert_array_equal(corrected.points, result.points)
         assert compensator.counts['pairs_skew_compensated'] == 2
         assert compensator.counts['features_moving'] == 0
+
+
+def test_only_windows_that_changed_are_searched_and_the_rest_are_static(people_80x60):
+    # The left half of the scene moves 3 px between the frames, the right half does not:
+    # the right half's windows did not change (not searched: no NCC, no velocity), the left
+    # half's are tracked and give the motion. Would catch the search skipping moving windows
+    # or static windows getting a velocity.
+    texture = thermal(people_80x60)
+    moved = fourier_shift_image_x(texture, 3.0)
+    previous = noisy(np.where(np.arange(80)[None, :] < 40, moved, texture), 1)
+    left = noisy(texture, 2)
+    result = StereoMatcher(STConfig()).match(left, noisy(texture, 3))
+    motion = feature_motion(previous, left, result.x_left, result.y, PERIOD_S)
+    moving_side, static_side = result.x_left < 30, result.x_left > 50
+    assert static_side.sum() > 20 and moving_side.sum() > 20
+    assert not motion.changed[static_side].any()
+    assert np.isnan(motion.ncc[static_side]).all()
+    assert (motion.velocity_x[static_side] == 0).all()
+    assert motion.changed[moving_side].mean() > 0.9
+    assert np.median(motion.velocity_x[moving_side & motion.moving]) == \
+        pytest.approx(3.0 / PERIOD_S, abs=1.0)    # as the test above

@@ -12,8 +12,10 @@ that much:
 ``v_x`` is measured on the left camera alone, from its previous unique frame to the current one
 (a backward difference: no added latency), by tracking each feature's window: an integer
 zero-mean NCC search, then a parabola through the NCC at the best column and its neighbours.
-Features that do not move (best offset 0 and a sub-pixel shift below ``static_px``) get no
-correction at all, so a static scene keeps exactly the same disparities.
+Features that do not move (their window did not change beyond the noise, or best offset 0 and
+a sub-pixel shift below ``static_px``) get no correction at all, so a static scene keeps
+exactly the same disparities. Windows that did not change are not tracked at all (the search
+is most of the cost, and in a room most features are static).
 """
 
 import dataclasses
@@ -33,8 +35,9 @@ class FeatureMotion:
 
     velocity_x: np.ndarray      # px/s in the rectified image (0 where static or untracked)
     moving: np.ndarray          # bool: a correction applies
-    tracked: np.ndarray         # bool: the window could be tracked (inside, NCC >= min_ncc)
-    ncc: np.ndarray             # best NCC of the track (nan where untracked)
+    changed: np.ndarray         # bool: the window changed beyond the noise (so it was tracked)
+    tracked: np.ndarray         # bool: changed, and its track is good (NCC >= min_ncc, ...)
+    ncc: np.ndarray             # best NCC of the track (nan where not searched)
 
 
 def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
@@ -104,7 +107,10 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
     moving = np.zeros(n, dtype=bool)
     tracked = np.zeros(n, dtype=bool)
     best_ncc = np.full(n, np.nan)
-    index = np.flatnonzero(inside)
+    changed = np.zeros(n, dtype=bool)
+    inside_index = np.flatnonzero(inside)
+    changed[inside_index] = spread_map[y[inside_index], x[inside_index]] > change_noise * noise
+    index = np.flatnonzero(changed)
     if len(index):
         xi, yi = x[index] + reach_x, y[index] + reach_y
         offsets_x = np.arange(-search_x - 1, search_x + 2)
@@ -139,15 +145,13 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         beyond_x = (np.abs(offsets_x[col]) == search_x) & \
             (np.maximum(left_value, right_value) > peak)
         good = (peak >= min_ncc) & ~beyond_x & (np.abs(offsets_y[row]) < search_y)
-        changed = spread_map[y[index], x[index]] > change_noise * noise
-        static = ~changed | ((offsets_x[col] == 0) & (offsets_y[row] == 0) &
-                             (np.abs(shift) < static_px))
+        static = (offsets_x[col] == 0) & (offsets_y[row] == 0) & (np.abs(shift) < static_px)
         tracked[index] = good
         best_ncc[index] = peak
         moves = good & ~static
         moving[index] = moves
         velocity[index] = np.where(moves, shift / period_s, 0.0)
-    return FeatureMotion(velocity, moving, tracked, best_ncc)
+    return FeatureMotion(velocity, moving, changed, tracked, best_ncc)
 
 
 def skew_corrected_disparity(disparity, velocity_x, skew_s):
@@ -200,7 +204,7 @@ class SkewCompensator:
             return result
         motion = feature_motion(previous, left, result.x_left, result.y, period)
         self.counts['features_moving'] += int(motion.moving.sum())
-        self.counts['features_untracked'] += int((~motion.tracked).sum())
+        self.counts['features_untracked'] += int((motion.changed & ~motion.tracked).sum())
         if not motion.moving.any():
             return result
         disparity = skew_corrected_disparity(result.disparity, motion.velocity_x, skew_s)
