@@ -5,6 +5,7 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .c
 """
 
 import os
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -123,6 +124,8 @@ def test_mismatched_image_and_info_are_dropped_counted_and_reported(ros):
     matcher.sync.add(1, image)
     matcher.sync.add(2, _info(160, 120, 0.0))
     matcher.sync.add(3, _info(160, 120, -46.3))
+    # The worker thread matches (keep_latest): wait for it, not for a fixed time.
+    spin_until(executor, lambda: matcher.counts['dropped_bad_input'] == 1, 30.0)
     assert matcher.counts['dropped_bad_input'] == 1
     assert 'camera_info says 160x120' in matcher.last_error
     # ... and the node keeps running: a good pair goes through.
@@ -131,6 +134,7 @@ def test_mismatched_image_and_info_are_dropped_counted_and_reported(ros):
     for index, msg in enumerate((image, image, _info(80, 60, 0.0), _info(80, 60, -46.3))):
         msg.header = header
         matcher.sync.add(index, msg)
+    spin_until(executor, lambda: matcher.counts['matched'] == 1, 30.0)
     assert matcher.counts['matched'] == 1
 
 
@@ -240,3 +244,109 @@ def test_driver_replays_plain_byte_captures_in_the_mode_their_data_show(ros, tmp
     pixels = [np.frombuffer(bytes(m.data), '<u2').reshape(m.height, m.width).tobytes()
               for m in images]
     assert all(p in sent for p in pixels)
+
+
+def _textured_pair(stamp_sec):
+    rng = np.random.default_rng(stamp_sec)
+    texture = 7800 + 400 * rng.random((60, 80))
+    header = Header(frame_id='left')
+    header.stamp.sec = stamp_sec
+    messages = [image_to_msg(texture.astype(np.uint16), header),
+                image_to_msg(np.roll(texture, -5, axis=1).astype(np.uint16), header),
+                _info(80, 60, 0.0), _info(80, 60, -46.3)]
+    for msg in messages:
+        msg.header = header
+    return messages
+
+
+def _feed(matcher, messages):
+    for index, msg in enumerate(messages):
+        matcher.sync.add(index, msg)
+
+
+class GatedMatch:
+    """Wraps StereoMatcher.match: the first call waits until ``release`` (a slow matcher)."""
+
+    def __init__(self, match):
+        self.match, self.entered, self.gate = match, threading.Event(), threading.Event()
+
+    def __call__(self, *args, **kwargs):
+        self.entered.set()
+        self.gate.wait(60.0)
+        return self.match(*args, **kwargs)
+
+
+def test_a_slow_matcher_drops_stale_pairs_counted_and_publishes_the_newest(ros):
+    # Would catch: pairs queued behind a slow match (latency growing by a period per pair),
+    # a replaced pair not counted, the newest pair lost instead of the stale ones.
+    context, executor, add = ros
+    matcher = add(MatcherNode(context=context))
+    collector = add(Collector(context))
+    gated = GatedMatch(matcher.matcher.match)
+    matcher.matcher.match = gated
+    spin_until(executor, lambda: False, 1.0)          # discovery
+    _feed(matcher, _textured_pair(1))
+    assert gated.entered.wait(30.0)                   # pair 1 is being matched ...
+    for sec in (2, 3, 4):                             # ... while three more arrive
+        _feed(matcher, _textured_pair(sec))
+    assert matcher.counts['dropped_stale'] == 2       # 2 and 3 replaced; 4 waits
+    gated.gate.set()
+    spin_until(executor, lambda: len(collector.clouds) == 2, 30.0)
+    assert [c.header.stamp.sec for c in collector.clouds] == [1, 4]
+    counts = matcher.counts
+    assert (counts['pairs'], counts['matched'], counts['dropped_stale']) == (4, 2, 2)
+
+    def stale_in_diagnostics():
+        return collector.statuses.get('matcher: ST matching', {}).get('pairs dropped_stale')
+
+    spin_until(executor, lambda: stale_in_diagnostics() == '2', 10.0)    # 1 Hz diagnostics
+    assert stale_in_diagnostics() == '2'
+
+
+def test_without_keep_latest_every_pair_is_matched_in_order(ros):
+    context, executor, add = ros
+    matcher = add(MatcherNode(context=context, parameter_overrides=[
+        Parameter('keep_latest', value=False)]))
+    collector = add(Collector(context))
+    spin_until(executor, lambda: False, 1.0)
+    for sec in (1, 2, 3):
+        _feed(matcher, _textured_pair(sec))
+        assert matcher.counts['matched'] == sec       # matched inside the callback
+    spin_until(executor, lambda: len(collector.clouds) == 3, 30.0)
+    assert [c.header.stamp.sec for c in collector.clouds] == [1, 2, 3]
+    assert matcher.counts['dropped_stale'] == 0
+
+
+def test_an_unexpected_error_in_the_worker_is_counted_and_the_next_pair_matched(ros):
+    # Would catch: the worker thread dying on an exception (every later pair lost, unseen).
+    context, executor, add = ros
+    matcher = add(MatcherNode(context=context))
+    original = matcher.matcher.match
+    calls = []
+
+    def failing_once(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError('simulated failure')
+        return original(*args, **kwargs)
+
+    matcher.matcher.match = failing_once
+    _feed(matcher, _textured_pair(1))
+    spin_until(executor, lambda: matcher.counts['dropped_internal_error'] == 1, 30.0)
+    assert 'RuntimeError: simulated failure' in matcher.last_error
+    _feed(matcher, _textured_pair(2))
+    spin_until(executor, lambda: matcher.counts['matched'] == 1, 30.0)
+    assert matcher.counts['matched'] == 1 and matcher.last_error == ''
+
+
+def test_latest_slot_keeps_the_newest_item_and_counts_the_replaced():
+    from st_stereo.nodes.runtime import LatestSlot
+    slot = LatestSlot()
+    assert slot.take(timeout=0.01) is None            # nothing yet
+    assert not slot.put('a')
+    assert slot.put('b') and slot.put('c')
+    assert (slot.take(), slot.replaced) == ('c', 2)
+    assert slot.take(timeout=0.01) is None            # emptied by the take
+    slot.put('d')
+    assert slot.close()                               # 'd' was still waiting: dropped
+    assert slot.take() is None                        # closed: returns at once

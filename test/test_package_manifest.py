@@ -25,6 +25,7 @@ PROVIDERS = {
     'cv2': 'python3-opencv',
     'numpy': 'python3-numpy',
     'scipy': 'python3-scipy',
+    'numba': 'python3-numba',
     'yaml': 'python3-yaml',
     'tqdm': 'python3-tqdm',
     'matplotlib': 'python3-matplotlib',

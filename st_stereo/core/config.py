@@ -137,6 +137,12 @@ class STConfig:
                                      'a feature whose window did not change beyond the noise '
                                      'is not touched (docs/skew.md)')
 
+    # --- 6. Implementation ---------------------------------------------------------------
+    kernels: str = _field('auto', 'hot-path implementation: compiled (numba kernels), numpy '
+                          '(the reference), or auto (compiled when numba imports, else numpy); '
+                          'both give the same matches (st_stereo.core.kernels, docs/speed.md)',
+                          choices=('auto', 'compiled', 'numpy'))
+
     def __post_init__(self):
         """Validate every field against its metadata."""
         hints = typing.get_type_hints(type(self))

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from st_stereo.core.fourier import butterworth_lowpass, frequency_grid, periodic_fft2
+from st_stereo.core.kernels import phase_congruency_from_responses, use_compiled
 
 EPSILON = 1e-4  # Kovesi's epsilon, guards divisions by vanishing amplitude sums
 
@@ -168,6 +169,14 @@ def phase_congruency_moments(images, config):
     spectra = _image_spectra(images, config.pc_periodic)
     # responses: (n, norient, nscale, rows, cols), complex: even = real, odd = imag
     responses = sfft.ifft2(spectra[:, None, None] * bank[None], workers=1)
+    if use_compiled(config.kernels):
+        # The same arithmetic as below, one compiled pass (st_stereo.core.kernels).
+        threshold = noise_threshold(np.abs(responses[:, :, 0]), nscale, mult, config.noise_k)
+        maximum_moment, minimum_moment = phase_congruency_from_responses(
+            responses, threshold, angles, EPSILON, config.pc_cutoff, config.pc_gain)
+        if single:
+            return maximum_moment[0], minimum_moment[0]
+        return maximum_moment, minimum_moment
     amplitude = np.abs(responses)
     sum_amplitude = amplitude.sum(axis=2)
     max_amplitude = amplitude.max(axis=2)

@@ -7,8 +7,15 @@ P is the rectified geometry, so any image_proc-style rectifier can feed it) and 
 ``pair_info``
 (both acquisition stamps of each pair: the camera skew, see ``st_stereo.core.skew``); every ST
 parameter is a ROS parameter with its range and can be changed live (validated by STConfig).
+
+With ``keep_latest`` (the default) the matching runs in the node's own worker thread: the
+executor hands each complete pair over (``LatestSlot``) and goes on serving the other
+callbacks, and a pair still waiting when a newer one arrives is dropped and counted
+(``dropped_stale``), so a matcher slower than the cameras publishes the newest pair, never a
+queue of old ones.
 """
 
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -19,6 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from st_stereo.core.kernels import use_compiled, warm_up
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.skew import SkewCompensator
 from st_stereo.core.triangulation import StereoModel
@@ -27,7 +35,8 @@ from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import MATCHER_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters, declare_st_parameters, \
     validate_changes
-from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
+from st_stereo.nodes.runtime import LatestSlot, RELIABLE, spin_node, \
+    with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact
 from stereo_msgs.msg import DisparityImage
 
@@ -58,6 +67,11 @@ class MatcherNode(Node):
         declare_node_parameters(self, MATCHER_PARAMETERS)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.matcher = StereoMatcher(self.config)
+        # Compile (or load from numba's cache) the kernels now, not on the first pair.
+        self.kernels = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
+        self.kernel_warm_up_s = warm_up() if self.kernels == 'compiled' else 0.0
+        self.get_logger().info(f'kernels: {self.kernels} (start-up compile or cache load '
+                               f'{self.kernel_warm_up_s:.2f} s)')
         overriding = QoSOverridingOptions.with_default_policies()
         self.points_pub = self.create_publisher(PointCloud2, 'points2', RELIABLE,
                                                 qos_overriding_options=overriding)
@@ -72,9 +86,12 @@ class MatcherNode(Node):
         self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info, RELIABLE)
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
-        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'empty_clouds': 0,
+        self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'dropped_stale': 0,
+                       'dropped_internal_error': 0, 'dropped_at_shutdown': 0, 'empty_clouds': 0,
                        'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
                        'stamps_not_on_node_clock': 0}
+        self._pair_times_lock = threading.Lock()
+        self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
         self.processing_times = []
         self.last_pair_info_problem = ''
@@ -92,6 +109,41 @@ class MatcherNode(Node):
         self.last_result = None
         self.latencies = []
         self.create_timer(1.0, self._publish_diagnostics)
+        self._slot = None
+        if self.get_parameter('keep_latest').value:
+            self._slot = LatestSlot()
+            self._worker = threading.Thread(target=self._work, name='matcher', daemon=True)
+            self._worker.start()
+
+    def destroy_node(self):
+        """Stop the worker thread (a pair still waiting is counted as dropped_at_shutdown)."""
+        if self._slot is not None:
+            if self._slot.close():
+                self.counts['dropped_at_shutdown'] += 1
+            self._worker.join(timeout=10.0)
+        return super().destroy_node()
+
+    def _submit(self, messages):
+        if self._slot is None:
+            self._match_pair(*messages)
+            return
+        self._slot.put(messages)
+        self.counts['dropped_stale'] = self._slot.replaced
+
+    def _work(self):
+        while True:
+            messages = self._slot.take()
+            if messages is None:
+                return
+            try:
+                self._match_pair(*messages)
+            except Exception as error:  # noqa: B902 - the thread must outlive any one pair
+                # Inline, such an error would end the node; here it would end the thread
+                # unseen: the pair is counted, the error logged and shown in diagnostics.
+                self.counts['dropped_internal_error'] += 1
+                self.last_error = self.last_drop_reason = \
+                    f'internal error: {type(error).__name__}: {error}'
+                self.get_logger().error(f'matching a pair failed: {self.last_error}')
 
     def _on_parameters(self, parameters):
         for parameter in parameters:
@@ -110,6 +162,10 @@ class MatcherNode(Node):
             if parameter.name == 'pair_info_wait':
                 self.pair_info_wait = float(parameter.value)
         if config is not None:
+            try:
+                use_compiled(config.kernels)
+            except ValueError as error:
+                return SetParametersResult(successful=False, reason=str(error))
             self.config = config
             self.matcher = StereoMatcher(config)
         return result
@@ -124,17 +180,18 @@ class MatcherNode(Node):
             self.last_pair_info_problem = str(error)
             return
         stamp = _stamp_key(msg)
-        self.pair_times[stamp] = (left_time, skew)
+        with self._pair_times_lock:
+            self.pair_times[stamp] = (left_time, skew)
+            while len(self.pair_times) > 64:
+                self.pair_times.pop(next(iter(self.pair_times)))
         self.pair_info_seen = True
-        while len(self.pair_times) > 64:
-            self.pair_times.pop(next(iter(self.pair_times)))
         if self._waiting is not None and _stamp_key(self._waiting[1][0]) == stamp:
             self._release_waiting()
 
     def _release_waiting(self):
         if self._waiting is not None:
             messages, self._waiting = self._waiting[1], None
-            self._match_pair(*messages)
+            self._submit(messages)
 
     def _release_stale_pair(self):
         if self._waiting is not None and \
@@ -146,19 +203,32 @@ class MatcherNode(Node):
         # Without its pair_info a pair has neither a skew nor a left acquisition time (the
         # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
         # usable previous time either.
-        left_time, skew = self.pair_times.pop(stamp, (None, None))
+        with self._pair_times_lock:
+            left_time, skew = self.pair_times.pop(stamp, (None, None))
         return self.skew.correct(result, left, left_time, skew, model, bounds)
+
+    def _model_for(self, left_info, right_info):
+        # Built once per calibration, not per message (the rectifier's P rarely changes).
+        key = (tuple(left_info.p), tuple(right_info.p))
+        model = self._models.get(key)
+        if model is None:
+            model = StereoModel.from_projection_matrices(left_info.p, right_info.p)
+            if len(self._models) >= 4:
+                self._models.pop(next(iter(self._models)))
+            self._models[key] = model
+        return model
 
     def _on_pair(self, left_msg, right_msg, left_info, right_info):
         self.counts['pairs'] += 1
         messages = (left_msg, right_msg, left_info, right_info, time.monotonic())
         self._release_waiting()           # an older pair goes first, with what it has
-        if self.config.skew_compensation and self.pair_info_seen and \
-                _stamp_key(left_msg) not in self.pair_times:
+        with self._pair_times_lock:
+            known = _stamp_key(left_msg) in self.pair_times
+        if self.config.skew_compensation and self.pair_info_seen and not known:
             self.counts['waited_for_pair_info'] += 1
             self._waiting = (time.monotonic(), messages)
             return
-        self._match_pair(*messages)
+        self._submit(messages)
 
     def _match_pair(self, left_msg, right_msg, left_info, right_info, arrival):
         try:
@@ -168,7 +238,7 @@ class MatcherNode(Node):
                 if image.shape != (info.height, info.width):
                     raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but '
                                      f'its camera_info says {info.width}x{info.height}')
-            model = StereoModel.from_projection_matrices(left_info.p, right_info.p)
+            model = self._model_for(left_info, right_info)
             matcher = self.matcher
             matcher.model = model
             result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
@@ -214,6 +284,8 @@ class MatcherNode(Node):
     def _publish_diagnostics(self):
         level, summary, values = self.frequency.values(time.monotonic())
         values.update({f'pairs {k}': v for k, v in self.counts.items()})
+        values['kernels'] = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
+        values['kernels start-up (s)'] = round(self.kernel_warm_up_s, 3)
         values['pairs dropped by sync (left, right, left info, right info)'] = \
             ', '.join(map(str, self.sync.dropped))
         if self.last_pair_info_problem:

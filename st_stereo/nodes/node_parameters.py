@@ -90,6 +90,10 @@ MATCHER_PARAMETERS = [
                   'topic, which an executor may deliver after the images) before it is matched '
                   'without skew compensation (counted); only once a pair_info has been seen',
                   live=True),
+    NodeParameter('keep_latest', True, 'match in a worker thread, newest pair first: a pair '
+                  'still waiting when a newer one arrives is dropped and counted (pairs '
+                  'dropped_stale) instead of queued behind a slow match; false: every pair is '
+                  "matched in the executor's thread, in arrival order (offline replays)"),
 ]
 
 

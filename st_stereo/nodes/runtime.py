@@ -1,4 +1,10 @@
-"""The standard life of a node process: init, spin, clean shutdown on Ctrl-C or shutdown."""
+"""
+The standard life of a node process: init, spin, clean shutdown on Ctrl-C or shutdown.
+
+Also the QoS every publisher uses and the hand-over of work to a node's worker thread.
+"""
+
+import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -45,3 +51,45 @@ def spin_node(factory, args=None):
         node.destroy_node()
         rclpy.try_shutdown()
     return getattr(node, 'exit_code', 0)
+
+
+class LatestSlot:
+    """
+    Hand-over of work from the executor to one worker thread, keeping only the newest item.
+
+    ``put`` never blocks: an item still waiting when a newer one arrives is replaced and
+    counted in ``replaced`` (a slow consumer skips stale work instead of queueing it, which
+    would add a period of latency per queued item). ``take`` waits for an item; after
+    ``close`` it returns None.
+    """
+
+    def __init__(self):
+        self._condition = threading.Condition()
+        self._item = None
+        self._closed = False
+        self.replaced = 0
+
+    def put(self, item):
+        """Offer an item; returns True when it replaced an older one still waiting."""
+        with self._condition:
+            replaced = self._item is not None
+            if replaced:
+                self.replaced += 1
+            self._item = item
+            self._condition.notify()
+            return replaced
+
+    def take(self, timeout=None):
+        """Return the newest item (and empty the slot), or None once closed or on timeout."""
+        with self._condition:
+            self._condition.wait_for(lambda: self._item is not None or self._closed, timeout)
+            item, self._item = self._item, None
+            return None if self._closed else item
+
+    def close(self):
+        """Wake and stop the consumer; returns True when an item was still waiting (dropped)."""
+        with self._condition:
+            self._closed = True
+            pending, self._item = self._item is not None, None
+            self._condition.notify_all()
+            return pending

@@ -7,6 +7,7 @@ Pairs are a real frame resized (pixel-area) to each size and shifted by the rig'
 at 3.35 m, with the realistic noise / gain / offset difference.
 """
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -46,7 +47,6 @@ def config_for_width(base, width):
 
     (The default 0..40 px range is for 80x60; a dense range 0..320 at 640x512 would not fit.)
     """
-    import dataclasses
     if width <= 80:
         return base
     shift = rig_shift(width)
@@ -138,21 +138,41 @@ def memory_run(matcher, frame, pairs, progress):
 
 
 def print_table(rows):
-    """Print the benchmark table (Markdown)."""
-    print('| size | stage | ST median ms | ST p90 ms |')
-    print('|---|---|---|---|')
-    for size, row in rows.items():
-        for stage, (median, p90) in row['stages'].items():
-            print(f'| {size} | {stage} | {median:.2f} | {p90:.2f} |')
+    """
+    Print the benchmark tables (Markdown).
+
+    ``rows``: ``{size: {implementation: row}}``; the stage table has one column pair per
+    implementation (numpy, the reference, and compiled) measured in the same run.
+    """
+    implementations = list(next(iter(rows.values())))
+    header = ' | '.join(f'{name} median ms | {name} p90 ms' for name in implementations)
+    ratio = len(implementations) > 1
+    print(f'| size | stage | {header} |' + (' numpy / compiled |' if ratio else ''))
+    print('|---|---|' + '---|' * (2 * len(implementations) + ratio))
+    for size, by_implementation in rows.items():
+        stages = by_implementation[implementations[0]]['stages']
+        for stage in stages:
+            cells = []
+            for name in implementations:
+                median, p90 = by_implementation[name]['stages'][stage]
+                cells += [f'{median:.2f}', f'{p90:.2f}']
+            line = f'| {size} | {stage} | ' + ' | '.join(cells) + ' |'
+            if ratio:
+                compiled = by_implementation['compiled']['stages'][stage][0]
+                numpy_ms = by_implementation['numpy']['stages'][stage][0]
+                line += f' {numpy_ms / compiled:.2f} |' if compiled > 0 else ' - |'
+            print(line)
     print()
-    print('| size | pairs | ST total median ms | StereoSGBM median ms | ORB+KNN median ms | '
-          'ST / SGBM | ST / ORB+KNN | ST matches |')
-    print('|---|---|---|---|---|---|---|---|')
-    for size, row in rows.items():
-        total = row['stages']['total'][0]
-        print(f'| {size} | {row.get("pairs", "")} | {total:.2f} | {row["sgbm"][0]:.2f} | '
-              f'{row["orb_knn"][0]:.2f} | {total / row["sgbm"][0]:.2f} | '
-              f'{total / row["orb_knn"][0]:.2f} | {row["matches"]:.0f} |')
+    print('| size | implementation | pairs | ST total median ms | StereoSGBM median ms | '
+          'ORB+KNN median ms | ST / SGBM | ST / ORB+KNN | ST matches |')
+    print('|---|---|---|---|---|---|---|---|---|')
+    for size, by_implementation in rows.items():
+        for name, row in by_implementation.items():
+            total = row['stages']['total'][0]
+            print(f'| {size} | {name} | {row.get("pairs", "")} | {total:.2f} | '
+                  f'{row["sgbm"][0]:.2f} | {row["orb_knn"][0]:.2f} | '
+                  f'{total / row["sgbm"][0]:.2f} | {total / row["orb_knn"][0]:.2f} | '
+                  f'{row["matches"]:.0f} |')
 
 
 def main(args):
@@ -165,6 +185,7 @@ def main(args):
 
     from st_stereo.core.config import config_from_assignments
     from st_stereo.core.image_io import read_thermal_image
+    from st_stereo.core.kernels import numba_available, warm_up
     from st_stereo.core.matcher import StereoMatcher
     from st_stereo.package_data import shared_frame
 
@@ -177,12 +198,27 @@ def main(args):
         sizes.append((int(width), int(height)))
     # Fewer pairs at large sizes (same order of total time per size).
     counts = [max(5, int(args.pairs * min(1.0, 4800.0 * 4 / (w * h)))) for w, h in sizes]
+    # Both implementations side by side, unless --set kernels=... chose one.
+    chosen = any(assignment.split('=', 1)[0].strip() == 'kernels'
+                 for assignment in args.set or [])
+    implementations = [matcher.config.kernels] if chosen else \
+        ['numpy'] + (['compiled'] if numba_available() else [])
+    if not chosen and len(implementations) == 1:
+        print('kernels: numpy only (numba is not importable)')
+    elif not chosen:
+        print(f'kernels: numpy (the reference) and compiled (numba {numba_available()})')
+    print(f'compiled kernels warm-up (compile or cache load): {warm_up():.2f} s')
     rows = {}
-    with tqdm(total=sum(counts), desc='timing', unit='pair') as progress:
+    with tqdm(total=sum(counts) * len(implementations), desc='timing',
+              unit='pair') as progress:
         for (width, height), count in zip(sizes, counts):
-            row = benchmark_size(matcher, frame, width, height, count, progress)
-            row['pairs'] = count
-            rows[f'{width}x{height}'] = row
+            size = rows.setdefault(f'{width}x{height}', {})
+            for name in implementations:
+                config = dataclasses.replace(matcher.config, kernels=name)
+                row = benchmark_size(StereoMatcher(config), frame, width, height, count,
+                                     progress)
+                row['pairs'] = count
+                size[name] = row
     print_table(rows)
     if args.memory_pairs:
         with tqdm(total=args.memory_pairs, desc='memory', unit='pair') as progress:
