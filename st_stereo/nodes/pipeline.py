@@ -7,12 +7,13 @@ composition. The same parameter file as the separate nodes applies (node names u
 
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 
 from st_stereo.nodes.conversions import point_cloud_array
 from st_stereo.nodes.driver_node import DriverNode
@@ -27,24 +28,53 @@ def build_nodes(args=None):
 
 
 class SuiteMonitor(Node):
-    """Watches ``points2``: frequency, publish-to-receipt latency, matches, points."""
+    """
+    Watches ``points2``: frequency, latency, matches, points.
 
-    def __init__(self, driver=None, **kwargs):
+    ``latencies``: receipt minus the time the pair went out, from the in-process driver's
+    ``publish_wall_times`` when given (a bag's stamps are not wall time), else minus the stamp.
+    ``stamp_latencies``: receipt minus the stamp (wall-clock stamps: live or simulated cameras).
+    ``pair_latencies`` (with ``watch_raw``, or a driver): receipt minus the moment the pair was
+    published (the driver's record, or this node's receipt of ``left/image_raw``): what
+    rectifying, matching and the transports add, without the cameras' readout.
+    """
+
+    def __init__(self, driver=None, watch_raw=False, **kwargs):
         super().__init__('suite_monitor', **with_default_namespace(kwargs))
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
         self.driver = driver
+        self.raw_received = {}    # stamp key -> wall time left/image_raw arrived here
+        self.matcher_values = {}  # the matcher's last diagnostics (with watch_raw)
+        if watch_raw:
+            self.create_subscription(Image, 'left/image_raw', self._on_raw,
+                                     qos_profile_sensor_data)
+            self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.times, self.latencies, self.matches, self.depths = [], [], [], []
+        self.stamp_latencies, self.pair_latencies = [], []
         self.clouds = {}          # stamp in ns -> points (n, 3)
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.name.endswith('ST matching'):
+                self.matcher_values = {kv.key: kv.value for kv in status.values}
+
+    def _on_raw(self, msg):
+        self.raw_received[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = time.time()
+        while len(self.raw_received) > 256:
+            self.raw_received.pop(next(iter(self.raw_received)))
 
     def _on_points(self, msg):
         now = time.time()
         self.times.append(now)
         key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        published = self.driver.publish_wall_times.get(key) if self.driver else None
-        if published is None:     # stamps are wall time (live or simulated cameras)
-            published = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.latencies.append(now - published)
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        by_driver = self.driver.publish_wall_times.get(key) if self.driver else None
+        self.latencies.append(now - (stamp if by_driver is None else by_driver))
+        self.stamp_latencies.append(now - stamp)
+        published = by_driver if by_driver is not None else self.raw_received.get(key)
+        if published is not None:
+            self.pair_latencies.append(now - published)
         points = point_cloud_array(msg)
         self.clouds[key[0] * 1_000_000_000 + key[1]] = points[:, :3]
         self.matches.append(len(points))

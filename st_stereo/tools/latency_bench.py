@@ -1,11 +1,18 @@
 """
-Latency and CPU of the node suite: image stamp -> ``points2`` received, one process and three.
+Latency and CPU of the node suite: pair published (and image stamp) -> ``points2`` received.
 
 One process: driver (sim), rectifier, matcher and a monitor on one executor. Across processes:
-the three nodes as separate processes, the monitor here. Latency is the receipt time of each
-point cloud minus its header stamp (the stamp is the time packet 0 of the pair's frames was
-read, so reading, pairing, rectifying, matching and transport are all in it). CPU is the CPU
-time of the node processes over the run, in % of one core.
+the three nodes as separate processes, the monitor here. Two latencies per point cloud:
+
+- from the stamp: its receipt time minus its header stamp (the stamp is the time packet 0 of
+  the pair's frames was read, so reading, pairing, rectifying, matching and transport are all
+  in it);
+- from the pair's publication (issue 17's measure): receipt minus the moment the driver
+  published the raw pair (in one process the driver's own record; across processes the
+  monitor's receipt of ``left/image_raw``, a transport later), i.e. what the rectifier, the
+  matcher and the transports add.
+
+CPU is the CPU time of the node processes over the run, in % of one core.
 """
 
 import os
@@ -33,15 +40,21 @@ def _cpu_seconds(process):
     return times.user + times.system
 
 
-def _summary(monitor, cpu_seconds, wall_seconds, warmup):
-    latencies = np.array(monitor.latencies[warmup:]) * 1e3
+def _percentile_ms(values, warmup, q):
+    values = np.array(values[warmup:]) * 1e3
+    return float(np.percentile(values, q)) if len(values) else float('nan')
+
+
+def _summary(monitor, cpu_seconds, wall_seconds, warmup, matcher_counts=None):
     rate = 0.0
     if len(monitor.times) > warmup + 1:
         rate = (len(monitor.times) - warmup - 1) / (monitor.times[-1] - monitor.times[warmup])
     return {'clouds': len(monitor.times), 'rate_hz': rate,
-            'latency_median_ms': float(np.median(latencies)) if len(latencies) else float('nan'),
-            'latency_p99_ms': float(np.percentile(latencies, 99)) if len(latencies)
-            else float('nan'),
+            'latency_median_ms': _percentile_ms(monitor.stamp_latencies, warmup, 50),
+            'latency_p99_ms': _percentile_ms(monitor.stamp_latencies, warmup, 99),
+            'pair_latency_median_ms': _percentile_ms(monitor.pair_latencies, warmup, 50),
+            'pair_latency_p99_ms': _percentile_ms(monitor.pair_latencies, warmup, 99),
+            'dropped_stale': (matcher_counts or {}).get('dropped_stale', 'n/a'),
             'cpu_percent_of_one_core': 100.0 * cpu_seconds / wall_seconds}
 
 
@@ -49,7 +62,8 @@ def one_process(seconds, warmup=8):
     """Run the suite in this process for ``seconds``; returns the summary."""
     rclpy.init()
     nodes = [DriverNode(parameter_overrides=[Parameter('duration', value=float(seconds))]),
-             RectifierNode(), MatcherNode(), SuiteMonitor()]
+             RectifierNode(), MatcherNode()]
+    nodes.append(SuiteMonitor(driver=nodes[0]))
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
@@ -60,7 +74,7 @@ def one_process(seconds, warmup=8):
             executor.spin_once(timeout_sec=0.05)
         cpu = _cpu_seconds(process) - cpu_start
         wall = time.monotonic() - wall_start
-        return _summary(nodes[-1], cpu, wall, warmup)
+        return _summary(nodes[-1], cpu, wall, warmup, nodes[2].counts)
     finally:
         for node in nodes:
             node.destroy_node()
@@ -76,7 +90,7 @@ def three_processes(seconds, warmup=8):
         commands.append([sys.executable, '-c', f'from {module} import main; main()',
                          '--ros-args', *extra])
     rclpy.init()
-    monitor = SuiteMonitor()
+    monitor = SuiteMonitor(watch_raw=True)
     executor = SingleThreadedExecutor()
     executor.add_node(monitor)
     processes = [subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
@@ -96,7 +110,8 @@ def three_processes(seconds, warmup=8):
                 break          # the driver's stream ended
         cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
         wall = time.monotonic() - wall_start
-        return _summary(monitor, cpu, wall, warmup)
+        stale = monitor.matcher_values.get('pairs dropped_stale', 'n/a')
+        return _summary(monitor, cpu, wall, warmup, {'dropped_stale': stale})
     finally:
         for process in processes:
             process.terminate()
@@ -118,11 +133,12 @@ def main(argv=None):
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rows = {'one process': one_process(args.seconds),
             'three processes': three_processes(args.seconds)}
-    print('| layout | point clouds | rate Hz | latency median ms | latency p99 ms | '
-          'CPU % of one core |')
-    print('|---|---|---|---|---|---|')
+    print('| layout | point clouds | rate Hz | pair published -> points2 median ms | p99 ms | '
+          'stamp -> points2 median ms | p99 ms | stale pairs dropped | CPU % of one core |')
+    print('|---|---|---|---|---|---|---|---|---|')
     for name, row in rows.items():
         print(f'| {name} | {row["clouds"]} | {row["rate_hz"]:.2f} | '
+              f'{row["pair_latency_median_ms"]:.1f} | {row["pair_latency_p99_ms"]:.1f} | '
               f'{row["latency_median_ms"]:.1f} | {row["latency_p99_ms"]:.1f} | '
-              f'{row["cpu_percent_of_one_core"]:.1f} |')
+              f'{row["dropped_stale"]} | {row["cpu_percent_of_one_core"]:.1f} |')
     return 0
