@@ -3,6 +3,8 @@
 
     python3 .ci/dev.py run  [ARGS...]   the main job (st-stereo-suite ARGS)
     python3 .ci/dev.py test [ARGS...]   lint + tests (pytest ARGS)
+    python3 .ci/dev.py noble [ARGS...]  the core tests on Jazzy's platform versions
+                                        (.ci/requirements-noble.txt, in .venv-noble)
 
 Needs only Python 3.11 and a network path to the package index. The environment lives in
 .venv (or $ST_STEREO_VENV) and is reinstalled from requirements.txt whenever requirements.txt,
@@ -66,6 +68,38 @@ def ensure_environment():
     log('environment ready')
 
 
+NOBLE_VENV = ROOT / '.venv-noble'
+NOBLE_REQUIREMENTS = ROOT / '.ci' / 'requirements-noble.txt'
+# The tests of the algorithm room (st_stereo/core): no ROS, no Lepton layer.
+CORE_TESTS = ('test_kernels.py', 'test_phase_congruency.py', 'test_matcher.py',
+              'test_subpixel.py', 'test_rough_matching.py', 'test_fourier.py',
+              'test_triangulation.py', 'test_skew.py', 'test_trusted_points.py',
+              'test_camera_calibration.py', 'test_target_refinement.py', 'test_config.py')
+
+
+def noble(rest):
+    """Build (or update) .venv-noble from requirements-noble.txt; run the core tests there."""
+    python = NOBLE_VENV / 'bin' / 'python'
+    stamp = NOBLE_VENV / '.st_stereo_requirements.sha256'
+    digest = hashlib.sha256(NOBLE_REQUIREMENTS.read_bytes()).hexdigest()
+    if not python.exists():
+        log(f'creating {NOBLE_VENV}')
+        venv.EnvBuilder(with_pip=True, clear=True).create(NOBLE_VENV)
+    if not stamp.exists() or stamp.read_text().strip() != digest:
+        log('installing the Noble versions')
+        subprocess.run([str(python), '-m', 'pip', '--disable-pip-version-check', 'install',
+                        '--quiet', '-r', str(NOBLE_REQUIREMENTS)], check=True)
+        stamp.write_text(digest + '\n')
+    subprocess.run([str(python), '-c', 'import numpy, scipy, numba, cv2; print("[dev] numpy",'
+                    ' numpy.__version__, "scipy", scipy.__version__, "numba", '
+                    'numba.__version__, "OpenCV", cv2.__version__)'], check=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONDONTWRITEBYTECODE='1')
+    cmd = [str(python), '-m', 'pytest', '-p', 'no:cacheprovider'] + \
+        [str(ROOT / 'test' / name) for name in CORE_TESTS] + rest
+    log(' '.join(cmd))
+    return subprocess.run(cmd, cwd=ROOT, env=env).returncode
+
+
 def ros_environment():
     env = dict(os.environ)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -76,9 +110,11 @@ def ros_environment():
 
 
 def main(argv):
-    if not argv or argv[0] not in ('run', 'test'):
+    if not argv or argv[0] not in ('run', 'test', 'noble'):
         print(__doc__)
         return 2
+    if argv[0] == 'noble':
+        return noble(argv[1:])
     ensure_environment()
     command, rest = argv[0], argv[1:]
     env = ros_environment()
