@@ -45,6 +45,7 @@ class SuiteMonitor(Node):
                                  qos_profile_sensor_data)
         self.driver = driver
         self.raw_received = {}    # stamp key -> wall time left/image_raw arrived here
+        self.raw_count = 0        # left/image_raw messages received (with watch_raw)
         self.matcher_values = {}  # the matcher's last diagnostics (with watch_raw)
         if watch_raw:
             self.create_subscription(Image, 'left/image_raw', self._on_raw,
@@ -60,6 +61,7 @@ class SuiteMonitor(Node):
                 self.matcher_values = {kv.key: kv.value for kv in status.values}
 
     def _on_raw(self, msg):
+        self.raw_count += 1
         self.raw_received[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = time.time()
         while len(self.raw_received) > 256:
             self.raw_received.pop(next(iter(self.raw_received)))

@@ -124,11 +124,83 @@ def three_processes(seconds, warmup=8):
         rclpy.try_shutdown()
 
 
+def _rig_commands(rig, seconds):
+    """Return the command lines of one rig (three nodes) replaying the bundled recording."""
+    from st_stereo.package_data import bundled_recording
+    recording = bundled_recording()
+    commands = []
+    for module in NODE_MODULES:
+        extra = []
+        if 'driver' in module:
+            extra = ['-p', 'source:=bag', '-p', f'bag:={recording / "bag"}', '-p',
+                     f'duration:={float(seconds)}']
+            extra += [item for side in ('left', 'right') for item in
+                      ('-p', f'{side}.camera_info_url:=file://{recording / side}.yaml')]
+        commands.append([sys.executable, '-c', f'from {module} import main; main()',
+                         '--ros-args', '-r', f'__ns:=/rig{rig}', *extra])
+    return commands
+
+
+def many_rigs(count, seconds):
+    """
+    Run ``count`` rigs on this machine, each three processes replaying the bundled recording.
+
+    Returns one row: per rig the pairs published (received here on ``left/image_raw``) and the
+    clouds received, the lowest cloud rate, and the CPU of all the processes. A rig is held
+    when every pair it published came back as a cloud (one in flight at the end allowed).
+    """
+    rclpy.init()
+    monitors = [SuiteMonitor(watch_raw=True, namespace=f'rig{k}') for k in range(1, count + 1)]
+    executor = SingleThreadedExecutor()
+    for monitor in monitors:
+        executor.add_node(monitor)
+    commands = [c for k in range(1, count + 1) for c in _rig_commands(k, seconds)]
+    processes = [subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for command in commands]
+    handles = [psutil.Process(p.pid) for p in processes]
+    try:
+        wall_start = time.monotonic()
+        cpu_start = sum(_cpu_seconds(h) for h in handles)
+        deadline = wall_start + seconds + 30.0
+        last_cloud = time.monotonic()
+        while time.monotonic() < deadline:
+            count_before = sum(len(m.times) for m in monitors)
+            executor.spin_once(timeout_sec=0.05)
+            if sum(len(m.times) for m in monitors) != count_before:
+                last_cloud = time.monotonic()
+            elif all(m.times for m in monitors) and time.monotonic() - last_cloud > 3.0:
+                break          # every rig's recording ended
+        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
+        wall = time.monotonic() - wall_start
+    finally:
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        for monitor in monitors:
+            monitor.destroy_node()
+        rclpy.try_shutdown()
+    published = [m.raw_count for m in monitors]
+    clouds = [len(m.times) for m in monitors]
+    rates = [_summary(m, 0.0, 1.0, 8)['rate_hz'] for m in monitors]
+    held = all(p > 0 and c >= p - 1 for p, c in zip(published, clouds))
+    return {'rigs': count, 'published': sum(published), 'clouds': sum(clouds),
+            'lowest_rate_hz': min(rates), 'held': held,
+            'cpu_percent_of_one_core': 100.0 * cpu / wall}
+
+
 def main(argv=None):
     """Print the latency / CPU table of both layouts."""
     import argparse
     parser = argparse.ArgumentParser(prog='st-stereo-latency', description=__doc__)
     parser.add_argument('--seconds', type=float, default=20.0, help='stream per layout')
+    parser.add_argument('--rigs', type=int, default=0, metavar='N',
+                        help='also run 1..N rigs (three processes each, namespaces /rig1.., '
+                             'each replaying the bundled recording) and print the largest '
+                             'number held without a lost pair')
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rows = {'one process': one_process(args.seconds),
@@ -141,4 +213,19 @@ def main(argv=None):
               f'{row["pair_latency_median_ms"]:.1f} | {row["pair_latency_p99_ms"]:.1f} | '
               f'{row["latency_median_ms"]:.1f} | {row["latency_p99_ms"]:.1f} | '
               f'{row["dropped_stale"]} | {row["cpu_percent_of_one_core"]:.1f} |')
+    if args.rigs:
+        print()
+        print('| rigs | pairs published | clouds received | lowest cloud rate Hz | '
+              'every pair matched | CPU % of one core |')
+        print('|---|---|---|---|---|---|')
+        largest = 0
+        for count in range(1, args.rigs + 1):
+            row = many_rigs(count, min(args.seconds, 15.0))
+            print(f'| {count} | {row["published"]} | {row["clouds"]} | '
+                  f'{row["lowest_rate_hz"]:.2f} | {"yes" if row["held"] else "no"} | '
+                  f'{row["cpu_percent_of_one_core"]:.1f} |', flush=True)
+            if not row['held']:
+                break
+            largest = count
+        print(f'largest number of rigs held (every pair matched): {largest}')
     return 0
