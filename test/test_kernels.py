@@ -66,3 +66,27 @@ def test_the_configuration_rejects_an_unknown_kernel_choice():
 def test_warm_up_compiles_and_reports_its_time():
     assert kernels.warm_up() >= 0.0
     assert kernels._compiled.cache_info().currsize == 1
+
+
+def test_the_lades_volume_matches_the_numpy_reference(any_frame_80x60):
+    from scipy import ndimage
+    from st_stereo.core.phase_congruency import feature_strength
+    from st_stereo.core.rough_matching import lades_similarity_volume, shifted_stack, TINY
+    left, right = make_shifted_pair(any_frame_80x60, 6.4, np.random.default_rng(2),
+                                    realistic=True)
+    moments = feature_strength(np.stack([left, right]), NUMPY).astype(np.float64)
+    for disparities, window in ((np.arange(0, 41), 11), (np.arange(3, 9), 5)):
+        expected = lades_similarity_volume(moments[0], moments[1], disparities, window)
+        got = kernels.lades_similarity_volume(moments[0], moments[1], disparities, window,
+                                              TINY)
+        assert got.dtype == np.float32 and got.shape == expected.shape
+
+        def energy(image):
+            return ndimage.uniform_filter(image ** 2, window, mode='constant')
+
+        # Where both windows hold some M: windows of M ~ 0 give 0 / 0 ratios in which
+        # OpenCV's float32 running-sum residues (~1e-9) decide the reference's value.
+        held = np.sqrt(energy(moments[0])[None] *
+                       shifted_stack(energy(moments[1]), disparities)) > 1e-3
+        assert held.mean() > 0.3
+        np.testing.assert_allclose(got[held], expected[held], rtol=0, atol=1e-5)

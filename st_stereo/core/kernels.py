@@ -127,12 +127,69 @@ def _compiled():
                     out_max[i, r, c] = (x2 + y2 + denom) / two
                     out_min[i, r, c] = (x2 + y2 - denom) / two
 
+    @jit
+    def _box_mean(values, half, area):
+        # Separable running sums over (2 half + 1)^2 windows, zero outside the image.
+        rows, cols = values.shape
+        across = np.zeros((rows, cols), dtype=np.float64)
+        for r in range(rows):
+            total = 0.0
+            for c in range(min(half, cols)):
+                total += values[r, c]
+            for c in range(cols):
+                if c + half < cols:
+                    total += values[r, c + half]
+                if c - half - 1 >= 0:
+                    total -= values[r, c - half - 1]
+                across[r, c] = total
+        out = np.empty((rows, cols), dtype=np.float32)
+        for c in range(cols):
+            total = 0.0
+            for r in range(min(half, rows)):
+                total += across[r, c]
+            for r in range(rows):
+                if r + half < rows:
+                    total += across[r + half, c]
+                if r - half - 1 >= 0:
+                    total -= across[r - half - 1, c]
+                out[r, c] = np.float32(total / area)
+        return out
+
+    @jit
+    def lades_volume(left, right, disparities, window, tiny, out):
+        """
+        Lades similarity for every left pixel and disparity (paper eq. 9), M zero outside.
+
+        The box means of ``lades_similarity_volume`` as running sums (float64 accumulators,
+        divided by W^2 as OpenCV's normalised box filter with a zero border does); writes
+        ``out`` (D, rows, cols) float32.
+        """
+        rows, cols = left.shape
+        half = window // 2
+        area = np.float64(window * window)
+        left_energy = _box_mean(left * left, half, area)
+        right_energy = _box_mean(right * right, half, area)
+        product = np.zeros((rows, cols), dtype=np.float32)
+        zero = np.float32(0.0)
+        for k in range(len(disparities)):
+            d = disparities[k]
+            for r in range(rows):
+                for c in range(cols):
+                    product[r, c] = left[r, c] * right[r, c - d] if c >= d else zero
+            numerator = _box_mean(product, half, area)
+            for r in range(rows):
+                for c in range(cols):
+                    energy = right_energy[r, c - d] if c >= d else zero
+                    denominator = np.sqrt(max(left_energy[r, c] * energy, zero))
+                    out[k, r, c] = numerator[r, c] / max(denominator, tiny)
+
     class Kernels:
         pass
 
     kernels = Kernels()
     kernels.orientation_energy = orientation_energy
     kernels.moments = moments
+    kernels.lades_volume = lades_volume
     return kernels
 
 
@@ -155,6 +212,16 @@ def phase_congruency_from_responses(responses, thresholds, angles, epsilon, cuto
     return maximum, minimum
 
 
+def lades_similarity_volume(left_moments, right_moments, disparities, window, tiny):
+    """Compiled counterpart of ``rough_matching.lades_similarity_volume``, (D, rows, cols)."""
+    left = np.ascontiguousarray(left_moments, dtype=np.float32)
+    right = np.ascontiguousarray(right_moments, dtype=np.float32)
+    disparities = np.ascontiguousarray(disparities, dtype=np.int64)
+    out = np.empty((len(disparities),) + left.shape, dtype=np.float32)
+    _compiled().lades_volume(left, right, disparities, int(window), np.float32(tiny), out)
+    return out
+
+
 def warm_up():
     """Compile (or load) every kernel now; returns the seconds it took."""
     start = time.perf_counter()
@@ -162,4 +229,5 @@ def warm_up():
         phase_congruency_from_responses(np.ones((1, 2, 2, 4, 4), np.complex64),
                                         np.zeros((1, 2), np.float32), np.zeros(2), 1e-4, 0.5,
                                         10.0)
+        lades_similarity_volume(np.ones((4, 4)), np.ones((4, 4)), np.arange(2), 3, 1e-12)
     return time.perf_counter() - start

@@ -14,6 +14,9 @@ import dataclasses
 import cv2
 import numpy as np
 
+from st_stereo.core.kernels import lades_similarity_volume as compiled_lades_similarity_volume, \
+    use_compiled
+
 TINY = 1e-12
 
 REJECTION_KEYS = ('no_candidate', 'similarity', 'ambiguous', 'left_right', 'ordering',
@@ -363,8 +366,12 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
         rejected['no_candidate'] = int(left_features.sum())
         empty = np.zeros(0, dtype=np.int64)
         return RoughMatches(empty, empty, empty, np.zeros(0), rejected, np.zeros(0))
-    volume = lades_similarity_volume(left_moments, right_moments, disparities,
-                                     config.similarity_window)
+    if use_compiled(config.kernels):
+        volume = compiled_lades_similarity_volume(left_moments, right_moments, disparities,
+                                                  config.similarity_window, TINY)
+    else:
+        volume = lades_similarity_volume(left_moments, right_moments, disparities,
+                                         config.similarity_window)
     candidate_level = config.candidate_ratio * config.gamma
     # Right columns whose sub-pixel window fits: where candidates (and rivals) may lie.
     inside = np.ones((rows, cols), dtype=bool)

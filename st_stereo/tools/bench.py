@@ -89,35 +89,46 @@ def _stats(values):
     return float(np.median(values)), float(np.percentile(values, 90))
 
 
-def benchmark_size(matcher, frame, width, height, pairs, progress):
-    """Per-stage ST timings and the peers' timings over ``pairs`` pairs of one size."""
+def benchmark_size(matchers, frame, width, height, pairs, progress):
+    """
+    Per-stage ST timings of each matcher and the peers' timings over ``pairs`` pairs.
+
+    ``matchers``: ``{name: StereoMatcher}`` (the implementations), timed in turn on every
+    pair so that a machine's drift during the run affects them alike. Returns
+    ``{name: row}``; the peers' timings are the same in every row.
+    """
     from st_stereo.core.fourier import fourier_shift_image_x
     from st_stereo.core.matcher import StereoMatcher
     from st_stereo.core.skew import feature_motion, skew_corrected_disparity
-    matcher = StereoMatcher(config_for_width(matcher.config, width))
+    matchers = {name: StereoMatcher(config_for_width(matcher.config, width))
+                for name, matcher in matchers.items()}
     left, right = make_pair(frame, width, height)
-    matcher.match(left, right)   # warm the filter-bank caches
-    stages = {}
+    for matcher in matchers.values():
+        matcher.match(left, right)   # warm the filter-bank caches
+    stages = {name: {} for name in matchers}
+    matches = {name: [] for name in matchers}
     sgbm, orb = [], []
-    matches = []
     # The camera skew correction of a moving scene (every feature tracked from a previous
     # left frame 2 px away): its own row, not part of ST's total.
     previous = fourier_shift_image_x(left, 2.0)
     for _ in range(pairs):
-        result = matcher.match(left, right)
-        for key, value in result.timings_ms.items():
-            stages.setdefault(key, []).append(value)
-        tick = time.perf_counter()
-        motion = feature_motion(previous, left, result.x_left, result.y, 1.0 / 8.7)
-        skew_corrected_disparity(result.disparity, motion.velocity_x, 0.03)
-        stages.setdefault('skew compensation (not in total)', []).append(
-            1e3 * (time.perf_counter() - tick))
-        matches.append(len(result))
+        for name, matcher in matchers.items():
+            result = matcher.match(left, right)
+            for key, value in result.timings_ms.items():
+                stages[name].setdefault(key, []).append(value)
+            tick = time.perf_counter()
+            motion = feature_motion(previous, left, result.x_left, result.y, 1.0 / 8.7)
+            skew_corrected_disparity(result.disparity, motion.velocity_x, 0.03)
+            stages[name].setdefault('skew compensation (not in total)', []).append(
+                1e3 * (time.perf_counter() - tick))
+            matches[name].append(len(result))
+            progress.update(1)
         sgbm.append(time_sgbm(left, right, width))
         orb.append(time_orb_knn(left, right))
-        progress.update(1)
-    return {'stages': {k: _stats(v) for k, v in stages.items()}, 'sgbm': _stats(sgbm),
-            'orb_knn': _stats(orb), 'matches': float(np.median(matches))}
+    return {name: {'stages': {k: _stats(v) for k, v in stages[name].items()},
+                   'sgbm': _stats(sgbm), 'orb_knn': _stats(orb),
+                   'matches': float(np.median(matches[name])), 'pairs': pairs}
+            for name in matchers}
 
 
 def memory_run(matcher, frame, pairs, progress):
@@ -211,14 +222,11 @@ def main(args):
     rows = {}
     with tqdm(total=sum(counts) * len(implementations), desc='timing',
               unit='pair') as progress:
+        matchers = {name: StereoMatcher(dataclasses.replace(matcher.config, kernels=name))
+                    for name in implementations}
         for (width, height), count in zip(sizes, counts):
-            size = rows.setdefault(f'{width}x{height}', {})
-            for name in implementations:
-                config = dataclasses.replace(matcher.config, kernels=name)
-                row = benchmark_size(StereoMatcher(config), frame, width, height, count,
-                                     progress)
-                row['pairs'] = count
-                size[name] = row
+            rows[f'{width}x{height}'] = benchmark_size(matchers, frame, width, height, count,
+                                                       progress)
     print_table(rows)
     if args.memory_pairs:
         with tqdm(total=args.memory_pairs, desc='memory', unit='pair') as progress:
