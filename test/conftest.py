@@ -35,3 +35,15 @@ def any_frame_80x60(request, thermal_dir):
 def rng():
     """Return a seeded random generator."""
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope='session', autouse=True)
+def compiled_kernels():
+    """
+    Compile (or load) the numba kernels once, before any test's nodes start.
+
+    On a clean checkout the first compile takes seconds; a node test that starts a driver
+    before its matcher would otherwise lose that many pairs to the first matcher's start.
+    """
+    from st_stereo.core.kernels import warm_up
+    return warm_up()

@@ -121,3 +121,24 @@ def test_readme_lists_every_node_parameter_as_the_nodes_declare_it():
     readme = (pathlib.Path(__file__).resolve().parents[1] / 'README.md').read_text()
     assert node_parameters_markdown() in readme, 'README node parameter table is stale: ' \
         'regenerate it with `st-stereo params --node-markdown`'
+
+
+def test_rig_losses_count_pairs_without_a_cloud_in_the_window_and_late_rigs():
+    # Would catch: losses hidden by a per-rig warm-up, a rig that never produced a cloud
+    # counted as held, images outside the scored window counted.
+    import types
+    from st_stereo.tools.latency_bench import rig_losses
+
+    def monitor(raw, clouds, first_cloud):
+        return types.SimpleNamespace(
+            raw_received={(sec, 0): seen for sec, seen in raw.items()},
+            clouds={sec * 1_000_000_000: None for sec in clouds},
+            times=[] if first_cloud is None else [first_cloud])
+
+    raw = {1: 10.0, 2: 10.1, 3: 10.2, 4: 10.3, 5: 20.0}
+    good = monitor(raw, [2, 3, 4], 9.0)            # pair 1 is before the window
+    lossy = monitor(raw, [2, 4], 9.0)              # pair 3 never came back
+    late = monitor(raw, [2, 3, 4], 10.15)          # started after the window opened
+    silent = monitor(raw, [], None)                # never produced a cloud
+    assert rig_losses([good, lossy, late, silent], (10.05, 11.0)) == \
+        [(3, 0), (3, 1), (3, 3), (3, 3)]

@@ -63,9 +63,24 @@ def test_the_configuration_rejects_an_unknown_kernel_choice():
         dataclasses.replace(STConfig(), kernels='gpu')
 
 
-def test_warm_up_compiles_and_reports_its_time():
-    assert kernels.warm_up() >= 0.0
-    assert kernels._compiled.cache_info().currsize == 1
+def test_a_second_process_loads_every_kernel_from_the_disk_cache(tmp_path):
+    # Would catch a kernel whose cache key changes per process (a closure over another
+    # kernel did): recompiled at every node start, seconds on a small board.
+    import os
+    import subprocess
+    import sys
+    script = (
+        'from st_stereo.core import kernels\n'
+        'kernels.warm_up()\n'
+        'module = kernels._compiled()\n'
+        'print(sorted(name for name in ("orientation_energy", "moments", "lades_volume") '
+        'if sum(getattr(module, name).stats.cache_hits.values()) > 0))\n')
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    runs = []
+    for _ in range(2):
+        runs.append(subprocess.run([sys.executable, '-c', script], env=env, check=True,
+                                   capture_output=True, text=True).stdout.strip())
+    assert runs[1] == "['lades_volume', 'moments', 'orientation_energy']", runs
 
 
 def test_the_lades_volume_matches_the_numpy_reference(any_frame_80x60):

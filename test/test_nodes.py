@@ -54,12 +54,13 @@ def spin_until(executor, predicate, timeout_s):
 @pytest.mark.timeout(180)
 def test_simulated_rig_end_to_end(ros):
     context, executor, add = ros
-    driver = add(DriverNode(context=context, parameter_overrides=[
-        Parameter('duration', value=6.0), Parameter('sim_depth', value=3.5),
-        Parameter('telemetry', value='footer')]))
+    # Subscribers first: the driver publishes from the moment it exists.
     add(RectifierNode(context=context))
     add(MatcherNode(context=context))
     collector = add(Collector(context))
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('duration', value=6.0), Parameter('sim_depth', value=3.5),
+        Parameter('telemetry', value='footer')]))
     spin_until(executor, driver.finished.is_set, 90.0)
     spin_until(executor, lambda: False, 1.5)          # drain the last pair and diagnostics
     clouds = collector.clouds
@@ -343,10 +344,15 @@ def test_latest_slot_keeps_the_newest_item_and_counts_the_replaced():
     from st_stereo.nodes.runtime import LatestSlot
     slot = LatestSlot()
     assert slot.take(timeout=0.01) is None            # nothing yet
-    assert not slot.put('a')
-    assert slot.put('b') and slot.put('c')
-    assert (slot.take(), slot.replaced) == ('c', 2)
-    assert slot.take(timeout=0.01) is None            # emptied by the take
-    slot.put('d')
-    assert slot.close()                               # 'd' was still waiting: dropped
+    # Idle consumer: two items handed over at once are both kept, in order; a third
+    # pushes the oldest out (counted).
+    assert slot.put('a') == 0 and slot.put('b') == 0
+    assert slot.put('c') == 1
+    assert slot.take() == 'b'                         # now busy with 'b'
+    # Busy consumer: a newer item replaces the one waiting.
+    assert slot.put('d') == 1 and slot.put('e') == 1  # 'c', then 'd' replaced
+    assert (slot.take(), slot.replaced) == ('e', 3)
+    assert slot.take(timeout=0.01) is None            # emptied
+    slot.put('f')
+    assert slot.close() == 1                          # 'f' was still waiting: dropped
     assert slot.take() is None                        # closed: returns at once

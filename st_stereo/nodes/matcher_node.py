@@ -68,9 +68,9 @@ class MatcherNode(Node):
         self.add_on_set_parameters_callback(self._on_parameters)
         self.matcher = StereoMatcher(self.config)
         # Compile (or load from numba's cache) the kernels now, not on the first pair.
-        self.kernels = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
-        self.kernel_warm_up_s = warm_up() if self.kernels == 'compiled' else 0.0
-        self.get_logger().info(f'kernels: {self.kernels} (start-up compile or cache load '
+        kernels = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
+        self.kernel_warm_up_s = warm_up() if kernels == 'compiled' else 0.0
+        self.get_logger().info(f'kernels: {kernels} (start-up compile or cache load '
                                f'{self.kernel_warm_up_s:.2f} s)')
         overriding = QoSOverridingOptions.with_default_policies()
         self.points_pub = self.create_publisher(PointCloud2, 'points2', RELIABLE,
@@ -118,8 +118,7 @@ class MatcherNode(Node):
     def destroy_node(self):
         """Stop the worker thread (a pair still waiting is counted as dropped_at_shutdown)."""
         if self._slot is not None:
-            if self._slot.close():
-                self.counts['dropped_at_shutdown'] += 1
+            self.counts['dropped_at_shutdown'] += self._slot.close()
             self._worker.join(timeout=10.0)
         return super().destroy_node()
 
@@ -168,6 +167,8 @@ class MatcherNode(Node):
                 return SetParametersResult(successful=False, reason=str(error))
             self.config = config
             self.matcher = StereoMatcher(config)
+            if use_compiled(config.kernels):
+                self.kernel_warm_up_s = warm_up()     # at once, not on the next pair
         return result
 
     def _on_pair_info(self, msg):
@@ -243,7 +244,8 @@ class MatcherNode(Node):
             matcher.model = model
             result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
                                    right_valid=data_mask(right_msg, right))
-            if self.config.skew_compensation:
+            # The matcher's own configuration: a live change may replace self.config meanwhile.
+            if matcher.config.skew_compensation:
                 result = self._compensate_skew(result, left, left_msg, model,
                                                matcher.disparity_bounds())
         except ValueError as error:
@@ -257,7 +259,7 @@ class MatcherNode(Node):
         self.points_pub.publish(conversions.point_cloud(header, points, result.disparity,
                                                         result.similarity, intensity,
                                                         result.confidence))
-        config = self.config
+        config = matcher.config
         low, high = matcher.disparity_bounds()
         self.disparity_pub.publish(conversions.disparity_image(
             header, left.shape, result.x_left, result.y, result.disparity, model.fx,

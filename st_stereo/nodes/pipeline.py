@@ -24,7 +24,10 @@ from st_stereo.nodes.runtime import with_default_namespace
 
 def build_nodes(args=None):
     """Create the three nodes of the pipeline (rclpy must be initialised)."""
-    return [DriverNode(), RectifierNode(), MatcherNode()]
+    # The driver last: it starts publishing at once, and the matcher loads its kernels first.
+    matcher = MatcherNode()
+    rectifier = RectifierNode()
+    return [DriverNode(), rectifier, matcher]
 
 
 class SuiteMonitor(Node):

@@ -57,39 +57,55 @@ class LatestSlot:
     """
     Hand-over of work from the executor to one worker thread, keeping only the newest item.
 
-    ``put`` never blocks: an item still waiting when a newer one arrives is replaced and
-    counted in ``replaced`` (a slow consumer skips stale work instead of queueing it, which
-    would add a period of latency per queued item). ``take`` waits for an item; after
-    ``close`` it returns None.
+    ``put`` never blocks. While the consumer is busy with an item, a newer one replaces any
+    still waiting, counted in ``replaced`` (a slow consumer skips stale work instead of
+    queueing it, which would add a period of latency per queued item). While it is idle (it
+    has not taken the waiting item yet) items are kept, at most ``IDLE_DEPTH``, and taken in
+    order: an executor callback that hands over two items at once (a pair released from a
+    wait, then the next one) loses neither. ``take`` waits for an item; after ``close`` it
+    returns None.
     """
+
+    IDLE_DEPTH = 2
 
     def __init__(self):
         self._condition = threading.Condition()
-        self._item = None
+        self._items = []
+        self._busy = False
         self._closed = False
         self.replaced = 0
 
     def put(self, item):
-        """Offer an item; returns True when it replaced an older one still waiting."""
+        """Offer an item; returns the number of older items it replaced (dropped)."""
         with self._condition:
-            replaced = self._item is not None
-            if replaced:
-                self.replaced += 1
-            self._item = item
+            if self._busy:
+                dropped, self._items = len(self._items), [item]
+            else:
+                self._items.append(item)
+                dropped = max(len(self._items) - self.IDLE_DEPTH, 0)
+                del self._items[:dropped]
+            self.replaced += dropped
             self._condition.notify()
-            return replaced
+            return dropped
 
     def take(self, timeout=None):
-        """Return the newest item (and empty the slot), or None once closed or on timeout."""
+        """
+        Return the next item (oldest kept first), or None once closed or on timeout.
+
+        Calling ``take`` again means the consumer is done with the previous item.
+        """
         with self._condition:
-            self._condition.wait_for(lambda: self._item is not None or self._closed, timeout)
-            item, self._item = self._item, None
-            return None if self._closed else item
+            self._busy = False
+            self._condition.wait_for(lambda: self._items or self._closed, timeout)
+            if self._closed or not self._items:
+                return None
+            self._busy = True
+            return self._items.pop(0)
 
     def close(self):
-        """Wake and stop the consumer; returns True when an item was still waiting (dropped)."""
+        """Wake and stop the consumer; returns how many items were still waiting (dropped)."""
         with self._condition:
             self._closed = True
-            pending, self._item = self._item is not None, None
+            pending, self._items = len(self._items), []
             self._condition.notify_all()
             return pending

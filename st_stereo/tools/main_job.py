@@ -62,9 +62,13 @@ def run_suite(argv=None):
         if (recording / 'ground_truth.npz').is_file():
             truth = load_ground_truth(recording)
         source = f'recording {recording}'
+    # Every pair of the replay is matched, in order (keep_latest off): the summary is the
+    # same on every run, whatever else the machine is doing. The matcher (its kernels load at
+    # start) and the rectifier exist before the driver starts publishing.
+    matcher = MatcherNode(parameter_overrides=[Parameter('keep_latest', value=False)])
+    rectifier = RectifierNode()
     driver = DriverNode(parameter_overrides=driver_overrides)
-    matcher = MatcherNode()
-    nodes = [driver, RectifierNode(), matcher, SuiteMonitor(driver)]
+    nodes = [driver, rectifier, matcher, SuiteMonitor(driver)]
     monitor = nodes[-1]
     executor = SingleThreadedExecutor()
     for node in nodes:
