@@ -163,15 +163,16 @@ def rig_losses(monitors, window):
     return rows
 
 
-def many_rigs(count, seconds, warmup_s=6.0):
+def many_rigs(count, seconds, warmup_s=1.0):
     """
     Run ``count`` rigs on this machine, each three processes replaying the bundled recording.
 
-    The rigs are scored over a common window from ``warmup_s`` after the launch (the node
-    processes start, discover each other and load their kernels while the drivers already
-    publish) to 1 s before the last pair: a rig is held when every pair it published in the
-    window came back as a cloud and it published at least 90 % of the cameras' unique frame
-    rate there (a starved driver, or a monitor that missed images, is not held either).
+    The rigs are scored over one common window, from ``warmup_s`` after the last rig's first
+    cloud (the node processes start, discover each other and load their kernels while the
+    drivers already publish) to 1 s before the last pair: a rig is held when every pair it
+    published in the window came back as a cloud and it published at least 90 % of the
+    cameras' unique frame rate there (a starved driver, or a monitor that missed images, is
+    not held either); the window must last 3 s at least. A rig without any cloud is not held.
     """
     rclpy.init()
     monitors = [SuiteMonitor(watch_raw=True, namespace=f'rig{k}') for k in range(1, count + 1)]
@@ -210,7 +211,10 @@ def many_rigs(count, seconds, warmup_s=6.0):
             monitor.destroy_node()
         rclpy.try_shutdown()
     last = max((t for m in monitors for t in m.raw_received.values()), default=launched)
-    window = (launched + warmup_s, last - 1.0)
+    # The window opens when the last rig is up (its first cloud) plus ``warmup_s``.
+    firsts = [m.times[0] for m in monitors if m.times]
+    opened = max(firsts) if len(firsts) == len(monitors) else launched
+    window = (opened + warmup_s, last - 1.0)
     length = max(window[1] - window[0], 1e-9)
     losses = rig_losses(monitors, window)
     lowest_rate = min(published / length for published, _ in losses)
