@@ -292,7 +292,9 @@ def test_a_slow_matcher_drops_stale_pairs_counted_and_publishes_the_newest(ros):
         _feed(matcher, _textured_pair(sec))
     assert matcher.counts['dropped_stale'] == 2       # 2 and 3 replaced; 4 waits
     gated.gate.set()
-    spin_until(executor, lambda: len(collector.clouds) == 2, 30.0)
+    # The cloud goes out before the worker counts it: wait for both.
+    spin_until(executor, lambda: len(collector.clouds) == 2 and
+               matcher.counts['matched'] == 2, 30.0)
     assert [c.header.stamp.sec for c in collector.clouds] == [1, 4]
     counts = matcher.counts
     assert (counts['pairs'], counts['matched'], counts['dropped_stale']) == (4, 2, 2)
