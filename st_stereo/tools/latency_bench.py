@@ -41,6 +41,17 @@ def _cpu_seconds(process):
     return times.user + times.system
 
 
+def _stop_processes(processes):
+    """Terminate node processes, killing any still running after 10 s."""
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
 def _percentile_ms(values, warmup, q):
     values = np.array(values[warmup:]) * 1e3
     return float(np.percentile(values, q)) if len(values) else float('nan')
@@ -115,13 +126,7 @@ def three_processes(seconds, warmup=8):
         stale = monitor.matcher_values.get('pairs dropped_stale', 'n/a')
         return _summary(monitor, cpu, wall, warmup, {'dropped_stale': stale})
     finally:
-        for process in processes:
-            process.terminate()
-        for process in processes:
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        _stop_processes(processes)
         monitor.destroy_node()
         rclpy.try_shutdown()
 
@@ -200,13 +205,7 @@ def many_rigs(count, seconds, warmup_s=1.0):
         cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
         wall = time.monotonic() - wall_start
     finally:
-        for process in processes:
-            process.terminate()
-        for process in processes:
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        _stop_processes(processes)
         for monitor in monitors:
             monitor.destroy_node()
         rclpy.try_shutdown()
