@@ -354,7 +354,16 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         # The pairs just before the automatic FFC are flagged (the camera said "imminent").
         flagged = [array for array in got.pair_info if any(
             kv.key == 'right ffc' and kv.value == 'True' for kv in array.status[0].values)]
-        assert 1 <= len(flagged) <= 4
+        # On failure, say what the right camera reported (issue: 3 of 8 runs once saw no
+        # flagged pair; the cause is not known yet, this message is there to find it).
+        right_status = got.statuses.get('lepton_driver: right camera', (None, '', {}))
+        right_ffc_values = sorted({kv.value for array in got.pair_info
+                                   for kv in array.status[0].values if kv.key == 'right ffc'})
+        assert 1 <= len(flagged) <= 4, (
+            f'{len(flagged)} pairs flagged of {len(got.pair_info)} pair_info; right ffc '
+            f'values {right_ffc_values}; right camera diagnostics {right_status}; '
+            f'right camera stats {rig.cameras["right"].stats()}; right frames sent with an '
+            f'FFC state: {[(f.unique, f.ffc) for f in sent["right"] if f.ffc]}')
         assert all(array.status[0].level == b'\x01' for array in flagged)
         # FFC: the right camera's command fails: the service says so, the left one ran.
         answer = answers[0].result()
