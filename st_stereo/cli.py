@@ -288,6 +288,27 @@ def command_eval_points(args):
     return 1 if failed and args.strict else 0
 
 
+def command_eval_people(args):
+    """People on the floor (detection, tracking) against the simulator's truth."""
+    from st_stereo.package_data import bundled_recording
+    from st_stereo.tools import eval_people
+    report, tallies = eval_people.evaluate(
+        sequences=[name for name in args.sequences.split(',') if name],
+        config=config_from_assignments(args.set),
+        recording=None if args.no_recording else bundled_recording(),
+        max_pairs=args.max_frames,
+        log=None if args.quiet else lambda line: print(line, file=sys.stderr))
+    print(eval_people.markdown_table(report))
+    print()
+    print(eval_people.markdown_timing(report))
+    if args.plot:
+        eval_people.plot_floor_plans(tallies, args.plot)
+    checks = eval_people.checks(report)
+    for name, label, value, target, met in checks:
+        print(f'{name}: {label}: {value:.3f} (target {target}): {"met" if met else "NOT met"}')
+    return 1 if args.strict and not all(row[4] for row in checks) else 0
+
+
 def command_eval_skew(args):
     """Disparity errors on moving people by camera skew, without and with compensation."""
     from st_stereo.tools import eval_skew
@@ -401,6 +422,18 @@ def build_parser():
     e.add_argument('--quiet', action='store_true')
     _add_config_option(e)
     e.set_defaults(handler=command_eval_points)
+    e = eval_sub.add_parser('people', help='people on the floor: recall, precision, errors, '
+                            'CLEAR MOT (motmetrics) on the sequences and the recording')
+    e.add_argument('--sequences',
+                   default='walk_across,two_people,sit_down,meeting_room,crossing')
+    e.add_argument('--max-frames', type=int, default=None, help='pairs per sequence (cap)')
+    e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
+    e.add_argument('--plot', help='floor plans of the true and estimated tracks (PNG)')
+    e.add_argument('--strict', action='store_true',
+                   help="exit 1 when one of the issue's criteria is not met")
+    e.add_argument('--quiet', action='store_true')
+    _add_config_option(e)
+    e.set_defaults(handler=command_eval_people)
     e = eval_sub.add_parser('skew', help='camera skew: disparity errors on moving people '
                             'without and with compensation, by skew and image speed')
     _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 4)

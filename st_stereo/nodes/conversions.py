@@ -142,3 +142,53 @@ def disparity_image(header, shape, x_left, y, disparity, focal, baseline, min_di
         msg.valid_window.x_offset, msg.valid_window.y_offset = valid_window[:2]
         msg.valid_window.width, msg.valid_window.height = valid_window[2:]
     return msg
+
+
+POINT_FIELD_DTYPES = {PointField.INT8: 'i1', PointField.UINT8: 'u1', PointField.INT16: 'i2',
+                      PointField.UINT16: 'u2', PointField.INT32: 'i4', PointField.UINT32: 'u4',
+                      PointField.FLOAT32: 'f4', PointField.FLOAT64: 'f8'}
+
+
+def point_cloud_fields(msg, required, optional=()):
+    """
+    Read named fields of any sensor_msgs/PointCloud2 as float64 arrays (n,).
+
+    Any layout (field order, padding, endianness, organised or not); a ``required`` field that
+    is missing, a field type that is not a number, or data of the wrong size is a ValueError
+    naming it. ``optional`` fields that are missing are None.
+    """
+    fields = {field.name: field for field in msg.fields}
+    missing = [name for name in required if name not in fields]
+    if missing:
+        raise ValueError(f'point cloud: no field(s) {missing} (fields: '
+                         f'{", ".join(fields) or "none"})')
+    count = msg.width * msg.height
+    if msg.point_step <= 0 and count:
+        raise ValueError(f'point cloud point_step: expected > 0, got {msg.point_step}')
+    if len(msg.data) < count * msg.point_step or msg.row_step * msg.height > len(msg.data):
+        raise ValueError(f'point cloud data: expected {msg.row_step * msg.height} bytes '
+                         f'({msg.height} rows of {msg.row_step}), got {len(msg.data)}')
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    if count:
+        rows = raw[:msg.row_step * msg.height].reshape(msg.height, msg.row_step)
+        raw = rows[:, :msg.width * msg.point_step].reshape(count, msg.point_step)
+    out = {}
+    for name in tuple(required) + tuple(optional):
+        field = fields.get(name)
+        if field is None:
+            out[name] = None
+            continue
+        if field.datatype not in POINT_FIELD_DTYPES:
+            raise ValueError(f'point cloud field {name}: datatype {field.datatype} is not a '
+                             f'number type')
+        dtype = np.dtype(POINT_FIELD_DTYPES[field.datatype]).newbyteorder(
+            '>' if msg.is_bigendian else '<')
+        if field.offset + dtype.itemsize > msg.point_step:
+            raise ValueError(f'point cloud field {name}: offset {field.offset} + '
+                             f'{dtype.itemsize} bytes beyond point_step {msg.point_step}')
+        if not count:
+            out[name] = np.zeros(0)
+            continue
+        column = np.ascontiguousarray(raw[:, field.offset:field.offset + dtype.itemsize])
+        out[name] = column.view(dtype).reshape(count).astype(np.float64)
+    return out

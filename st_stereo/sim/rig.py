@@ -224,6 +224,20 @@ class RigGeometry:
         r1 = self.rectification()[0]
         return left.to_camera(points_world) @ r1.T
 
+    def rig_pose(self, world_frame='map', rig_frame='stereo_rig'):
+        """
+        Return the true RigPose of the left camera (``st_stereo.core.rig_pose`` conventions).
+
+        The world here has x to the right, y away from the rig horizontally and z up; the rig's
+        x axis (the tilt direction) is the world's y (yaw 90 degrees) and the tilt from straight
+        down is ``90 - tilt_deg``.
+        """
+        from st_stereo.core.rig_pose import RigPose
+        left, _ = self.cameras()
+        return RigPose(world_frame=world_frame, rig_frame=rig_frame, x_m=float(left.centre[0]),
+                       y_m=float(left.centre[1]), height_m=float(left.centre[2]), yaw_deg=90.0,
+                       tilt_deg=90.0 - self.tilt_deg, roll_deg=0.0)
+
     @property
     def fx_baseline(self):
         """Return fx B of the rectified pair, pixel metres: ``d = fx B / Z``."""

@@ -293,6 +293,18 @@ def standard_sequences():
                           heading_rad=-math.pi * 0.3)),
             duration_s=8.0, rig=realistic_rig(), room='meeting_room', right_phase_s=-0.045,
             right_drift_ppm=-50.0),
+        # Held out of the people stage (st_stereo.core.people, docs/people.md): made after
+        # its parameters were chosen and never used to change them.
+        'crossing': SequenceSpec(
+            'crossing', 'held out: three people in the meeting room; two cross paths, one '
+            'leaves the view at the side, one walks in from outside it',
+            (_walker([(-1.8, 2.4), (2.7, 3.1)], tall, speed=1.0),
+             _walker([(1.5, 2.1), (-1.1, 3.9)], short, speed=0.8, start=0.8),
+             _walker([(-3.2, 3.3), (0.3, 3.1)], people.PersonLook(
+                 height_m=1.72, skin=33.5, top=29.0, trousers=28.0, seed=3), speed=0.9,
+                 start=1.5)),
+            duration_s=8.0, rig=realistic_rig(), room='meeting_room', right_phase_s=0.025,
+            right_drift_ppm=-50.0),
     }
 
 

@@ -1,0 +1,577 @@
+"""
+People on the floor from the matcher's 3-D points: detection and tracking (no ROS).
+
+The stages, each a pure function or a small state machine fed one pair at a time:
+
+1. ``rectified_to_world``: the points of ``points2`` (rectified left optical frame) into the
+   room (``world_frame``, floor at z = 0, z up) with the rig pose (``core.rig_pose``) and the
+   left camera's rectification R1: ``p_world = R_world_rig R_rig_optical R1^T p + t``.
+2. ``WarmBackground``: which points are warmer than the static room behind them. A per-pixel
+   background of the rectified left image, learned only where nothing warm stands, compared
+   after removing the frame's global offset (the median difference to the background), so a
+   flat-field correction's jump or the sensor's slow drift does not light the whole image up.
+3. ``detect_people``: the points between two heights above the floor, projected onto the
+   floor, smoothed into an occupancy map; each local maximum with enough points is a person.
+   Its floor position is the median of its upper-body points pushed back by the body's
+   half-depth (the camera sees the side facing it), its head height the top of its points
+   less the head's half-height, its position covariance the spread of those points over their
+   number plus the depth uncertainty of a point along the horizontal viewing direction
+   (``sigma_Z = Z sigma_d / d``: from ``Z = f B / d``, ``dZ / dd = -Z / d``).
+4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
+   assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
+   never repeat, a track confirmed after ``min_hits`` detections, kept without detections for
+   ``max_coast_s`` (short occlusions) and then ended.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import linear_sum_assignment
+
+from st_stereo.core.rig_pose import rig_to_optical_rotation, rotation_z
+
+
+def _field(default, description):
+    return dataclasses.field(default=default, metadata={'description': description})
+
+
+@dataclasses.dataclass(frozen=True)
+class PeopleConfig:
+    """Parameters of people detection and tracking (see the module docstring)."""
+
+    min_point_height_m: float = _field(
+        0.6, 'points lower than this above the floor are not used (floor, chairs, desks), m')
+    max_point_height_m: float = _field(
+        2.3, 'points higher than this above the floor are not used (walls, lamps), m')
+    min_head_height_m: float = _field(
+        1.0, 'a cluster whose head is lower is not a person (a sitting head is about 1.1 m), m')
+    person_radius_m: float = _field(
+        0.3, 'radius of one person on the floor: two people closer than it are one, m')
+    cell_m: float = _field(
+        0.05, 'cell of the floor occupancy map, m')
+    min_points: int = _field(
+        8, 'fewest points of one person')
+    min_confidence: float = _field(
+        0.0, 'points with a lower match confidence (points2 field confidence) are not used')
+    require_warm: bool = _field(
+        True, 'use only points warmer than the learned thermal background (needs left/image_rect)')
+    warm_margin_counts: float = _field(
+        100.0, 'warmer than the background by at least this, raw counts (the simulator: '
+        '35 counts per kelvin)')
+    background_time_s: float = _field(
+        20.0, 'time constant of the background where nothing warm is, s')
+    absorb_time_s: float = _field(
+        300.0, 'time constant of the background where something warm is (a static warm '
+        'object fades in), s')
+    edge_px: float = _field(
+        10.0, 'points this near the image top or a side edge mean the body is cut by it, pixels')
+    head_offset_m: float = _field(
+        0.0, 'the top of the points (95th percentile) minus this is the head centre height, m')
+    body_half_depth_m: float = _field(
+        0.0, 'a whole body: its floor position is pushed this far back from the camera, m')
+    cut_body_offset_m: float = _field(
+        0.1, 'a body cut by the top edge (what is seen is its front): pushed this far back, m')
+    disparity_sigma_px: float = _field(
+        0.15, 'disparity uncertainty of one point, for the position covariance, pixels')
+    gate_m: float = _field(
+        0.8, "farthest a detection may be from a track's prediction (plus 3 sigma of it), m")
+    max_coast_s: float = _field(
+        1.5, 'a track without detections ends after this, s')
+    publish_coast_s: float = _field(
+        0.3, 'a track without detections is published for this long (kept to max_coast_s), s')
+    min_hits: int = _field(
+        2, 'detections before a track is published')
+    min_travel_m: float = _field(
+        1.0, 'a track never seen with its head (cut by the top edge, like a warm screen) is '
+        'published only after moving this far, m')
+    reacquire_cut_s: float = _field(
+        0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
+    acceleration_sigma: float = _field(
+        2.0, 'process noise of the constant-velocity filter, m/s^2')
+
+    def __post_init__(self):
+        positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
+                    'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma')
+        if not 0.0 <= self.publish_coast_s <= self.max_coast_s:
+            raise ValueError(f'people.publish_coast_s: expected 0 .. max_coast_s '
+                             f'({self.max_coast_s!r}), got {self.publish_coast_s!r}')
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f'people.{name}: expected a number > 0, got {value!r}')
+        if not 0.0 <= self.min_point_height_m < self.max_point_height_m:
+            raise ValueError(f'people.min_point_height_m, max_point_height_m: expected 0 <= min '
+                             f'< max, got {self.min_point_height_m!r}, '
+                             f'{self.max_point_height_m!r}')
+        for name in ('min_points', 'min_hits'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f'people.{name}: expected an integer >= 1, got {value!r}')
+        if not 0.0 <= self.min_confidence <= 1.0:
+            raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
+
+    def to_dict(self):
+        """Return the fields as a dict."""
+        return dataclasses.asdict(self)
+
+
+def people_fields():
+    """Yield ``(name, type, default, description)`` of every PeopleConfig field."""
+    for field in dataclasses.fields(PeopleConfig):
+        yield field.name, type(field.default), field.default, field.metadata['description']
+
+
+def world_from_rectified(pose, rectification):
+    """
+    Return ``(R, t)`` with ``p_world = R p + t`` for points in the rectified left frame.
+
+    ``pose``: RigPose; ``rectification``: the left camera's R1 (camera_info ``R``), which turns
+    a raw optical direction into the rectified one (``v_rect = R1 v_raw``).
+    """
+    r1 = np.asarray(rectification, dtype=np.float64).reshape(3, 3)
+    world_rig = rotation_z(math.radians(pose.yaw_deg))
+    rotation = world_rig @ rig_to_optical_rotation(pose) @ r1.T
+    return rotation, np.array([pose.x_m, pose.y_m, pose.height_m])
+
+
+def rectified_to_world(points, transform):
+    """Points (n, 3) of the rectified left frame into the world frame of ``transform``."""
+    rotation, translation = transform
+    return np.asarray(points, dtype=np.float64).reshape(-1, 3) @ rotation.T + translation
+
+
+def camera_centre_in_world(transform):
+    """Return the left camera's optical centre in the world (the ``t`` of the transform)."""
+    return np.asarray(transform[1], dtype=np.float64)
+
+
+@dataclasses.dataclass(frozen=True)
+class Detection:
+    """
+    One person in one pair: floor position, head height, evidence and uncertainty.
+
+    ``head_visible`` False: the body is cut by the image's edge (the head may be outside it,
+    ``head_height`` then only a lower bound). ``cut_top``: cut by the top edge (far off, what
+    is seen is the front of the body below the head, as of a warm screen). ``depth_spread_m``:
+    the standard deviation of the points' camera depth Z (the paper's measure of a matcher on
+    a standing person).
+    """
+
+    x: float
+    y: float
+    head_height: float
+    points: int
+    confidence: float
+    covariance: np.ndarray        # 2x2, floor position, m^2
+    head_visible: bool = True
+    cut_top: bool = False
+    depth_spread_m: float = 0.0
+
+
+class WarmBackground:
+    """
+    Per-pixel background of the rectified left image and the warm foreground against it.
+
+    The background starts as the first image's median everywhere (an empty room at one
+    temperature), so a person standing still from the first pair is foreground. Pixels that are
+    not warm follow the scene with the time constant ``background_time_s`` (a running mean over
+    the first pairs); warm pixels only with ``absorb_time_s`` (a radiator, a screen or a
+    long-parked person fades into the background after minutes, a sitting one does not). Before
+    comparing, the image's median difference to the background (a flat-field correction's
+    offset jump, the sensor's drift) is removed.
+    """
+
+    def __init__(self, config=None):
+        self.config = config or PeopleConfig()
+        self.background = None
+        self.stamp_s = None
+        self.frames = 0
+
+    def update(self, image, stamp_s):
+        """Return the warm mask of ``image`` (bool, the image's shape) and learn from it."""
+        image = np.asarray(image, dtype=np.float64)
+        valid = image > 0                      # rectified pixels without data are 0
+        if self.background is None or self.background.shape != image.shape:
+            level = float(np.median(image[valid])) if valid.any() else 0.0
+            self.background = np.full(image.shape, level)
+            self.stamp_s, self.frames = stamp_s, 0
+        offset = float(np.median((image - self.background)[valid])) if valid.any() else 0.0
+        difference = image - self.background - offset
+        warm = valid & (difference > self.config.warm_margin_counts)
+        dt = max(0.0, stamp_s - self.stamp_s)
+        self.frames += 1
+        cool_rate = max(1.0 / self.frames, 1.0 - math.exp(-dt / self.config.background_time_s))
+        warm_rate = 1.0 - math.exp(-dt / self.config.absorb_time_s)
+        rate = np.where(warm, warm_rate, cool_rate) * valid
+        self.background = self.background + offset + rate * difference
+        self.stamp_s = stamp_s
+        return warm
+
+
+def warm_points(mask, x_left, y):
+    """Whether each point's left pixel (rounded ``x_left``, ``y``) is in the warm ``mask``."""
+    cols = np.clip(np.rint(np.asarray(x_left)).astype(int), 0, mask.shape[1] - 1)
+    rows = np.clip(np.rint(np.asarray(y)).astype(int), 0, mask.shape[0] - 1)
+    dilated = ndimage.binary_dilation(mask, iterations=1)
+    return dilated[rows, cols]
+
+
+def project_to_pixels(points, fx, fy, cx, cy):
+    """Left pixel (x, y) of points (n, 3) in the rectified left frame."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    z = np.where(points[:, 2] > 0, points[:, 2], np.nan)
+    return fx * points[:, 0] / z + cx, fy * points[:, 1] / z + cy
+
+
+def occupancy_peaks(xy, config):
+    """
+    Floor positions of the local maxima of the points' smoothed occupancy.
+
+    A histogram of ``cell_m`` cells smoothed by a Gaussian of sigma ``person_radius_m / 2``;
+    a peak is the largest value within ``person_radius_m`` and holds at least ``min_points``
+    points' worth of mass (a person's points spread over about that radius).
+    """
+    if len(xy) == 0:
+        return np.zeros((0, 2))
+    margin = 2 * config.person_radius_m
+    low = xy.min(axis=0) - margin
+    shape = tuple(int(v) + 1 for v in np.ceil((xy.max(axis=0) + margin - low) / config.cell_m))
+    cells = np.floor((xy - low) / config.cell_m).astype(int)
+    grid = np.zeros(shape)
+    np.add.at(grid, (cells[:, 0], cells[:, 1]), 1.0)
+    sigma = 0.5 * config.person_radius_m / config.cell_m
+    smooth = ndimage.gaussian_filter(grid, sigma, mode='constant')
+    size = 2 * int(round(config.person_radius_m / config.cell_m)) + 1
+    peaks = (smooth == ndimage.maximum_filter(smooth, size=size, mode='constant'))
+    # Mass within one sigma of a peak: the Gaussian puts 1 / (2 pi sigma^2) of a point there.
+    threshold = 0.5 * config.min_points / (2 * math.pi * sigma * sigma)
+    peaks &= smooth > threshold
+    index = np.argwhere(peaks)
+    order = np.argsort(-smooth[peaks])
+    return low + (index[order] + 0.5) * config.cell_m
+
+
+def detect_people(points_world, camera_centre, disparity=None, depth=None, confidence=None,
+                  config=None, pixels=None, image_shape=None):
+    """
+    Detect the people in one pair's points (see the module docstring).
+
+    Parameters
+    ----------
+    points_world : ndarray, shape (n, 3)
+        Points in the world frame (floor z = 0), already restricted to the warm ones if the
+        caller uses the warm foreground.
+    camera_centre : ndarray, shape (3,)
+        The left camera's centre in the world (the viewing direction of each point).
+    disparity, depth : ndarray, shape (n,), optional
+        Each point's disparity (px) and Z (m) in the camera: its depth uncertainty
+        ``Z sigma_d / d``; without them the covariance is the points' spread alone.
+    confidence : ndarray, shape (n,), optional
+        Each point's match confidence (0..1); ``min_confidence`` drops the lower ones.
+    pixels : ndarray, shape (n, 2), optional
+        Each point's left pixel (x, y), with ``image_shape`` (rows, cols): a person whose
+        points come within ``edge_px`` of the image's top or side edge is cut by it (far
+        away, the head above the image; walking in or out at a side), kept without the
+        ``min_head_height_m`` test, with ``head_visible`` False and its position pushed back
+        by ``cut_body_offset_m`` (what the camera sees of a cut body is its front).
+
+    Returns
+    -------
+    list of Detection
+        Strongest first.
+
+    """
+    config = config or PeopleConfig()
+    points = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    keep = (points[:, 2] >= config.min_point_height_m) & \
+        (points[:, 2] <= config.max_point_height_m) & np.isfinite(points).all(axis=1)
+    if confidence is not None:
+        keep &= np.asarray(confidence) >= config.min_confidence
+    sigma_depth = None
+    if disparity is not None and depth is not None:
+        d, z = np.asarray(disparity, dtype=np.float64), np.asarray(depth, dtype=np.float64)
+        keep &= d > 0
+        sigma_depth = np.where(d > 0, z * config.disparity_sigma_px / np.maximum(d, 1e-9), 0)
+        sigma_depth = sigma_depth[keep]
+    weights = np.ones(int(keep.sum())) if confidence is None else \
+        np.asarray(confidence, dtype=np.float64)[keep]
+    at_top = at_side = np.zeros(int(keep.sum()), dtype=bool)
+    if pixels is not None and image_shape is not None:
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)[keep]
+        at_top = px[:, 1] <= config.edge_px
+        # The left edge of what both cameras see is the right image's: x - d.
+        left_x = px[:, 0] - (0.0 if disparity is None else np.asarray(disparity)[keep])
+        at_side = (left_x <= config.edge_px) | (px[:, 0] >= image_shape[1] - 1 - config.edge_px)
+    points = points[keep]
+    centre = np.asarray(camera_centre, dtype=np.float64)
+    detections, taken = [], np.zeros(len(points), dtype=bool)
+    for peak in occupancy_peaks(points[:, :2], config):
+        near = (~taken) & (np.hypot(*(points[:, :2] - peak).T) <= config.person_radius_m)
+        if near.sum() < config.min_points:
+            continue
+        member = points[near]
+        top = float(np.percentile(member[:, 2], 95))
+        head = top - config.head_offset_m
+        upper = near & (points[:, 2] >= top - 0.4)
+        if upper.sum() < 3:
+            upper = near
+        # Cut by the image's edge: a fifth of the upper body at it (one arm is not enough).
+        cut_top = bool(np.mean(at_top[upper]) >= 0.2)
+        head_visible = not cut_top and bool(np.mean(at_side[upper]) < 0.2)
+        if head_visible and head < config.min_head_height_m:
+            continue
+        taken |= near
+        upper = points[upper]
+        xy = np.median(upper[:, :2], axis=0)
+        away = xy - centre[:2]
+        away /= max(float(np.hypot(*away)), 1e-9)
+        xy = xy + (config.cut_body_offset_m if cut_top else config.body_half_depth_m) * away
+        spread = np.cov(upper[:, :2].T) if len(upper) > 2 else np.eye(2) * 0.01
+        covariance = spread / len(upper)
+        if sigma_depth is not None:
+            ray = member - centre
+            horizontal = np.hypot(ray[:, 0], ray[:, 1]) / np.linalg.norm(ray, axis=1)
+            sigma = float(np.median(sigma_depth[near] * horizontal))
+            covariance = covariance + (sigma ** 2 / len(upper)) * np.outer(away, away)
+        strength = float(np.mean(weights[near])) * min(1.0, near.sum() / (3 * config.min_points))
+        spread_z = float(np.std(depth[keep][near])) if depth is not None else float('nan')
+        detections.append(Detection(float(xy[0]), float(xy[1]), head, int(near.sum()),
+                                    strength, covariance, head_visible, cut_top, spread_z))
+    return detections
+
+
+@dataclasses.dataclass
+class Track:
+    """One person followed over pairs: constant-velocity state ``x, y, vx, vy``."""
+
+    track_id: int
+    state: np.ndarray            # x, y, vx, vy
+    covariance: np.ndarray       # 4x4
+    head_height: float
+    confidence: float
+    points: int
+    hits: int
+    last_seen_s: float
+    head_visible: bool = True
+    updated: bool = True
+    seen_head: bool = False       # any detection showing a head (PeopleTracker._shows_head)
+    confirmed: bool = False       # published (min_hits, and a head seen or min_travel_m)
+    cut_top: bool = False         # the last detection was cut by the image's top edge
+    depth_spread_m: float = float('nan')   # the last detection's depth spread
+    start: np.ndarray = None      # first floor position
+
+    def __post_init__(self):
+        if self.start is None:
+            self.start = self.state[:2].copy()
+
+    @property
+    def travel_m(self):
+        """Return the distance from the first detection, metres."""
+        return float(np.hypot(*(self.state[:2] - self.start)))
+
+    @property
+    def position_covariance(self):
+        """Return the 2x2 floor position covariance, m^2."""
+        return self.covariance[:2, :2]
+
+
+class PeopleTracker:
+    """
+    Ids across pairs: predict, assign within the gate, update, start and end tracks.
+
+    ``update(detections, stamp_s)`` returns the confirmed tracks seen or coasting; ``ended``
+    after each update lists the ids that ended in it (their markers are deleted).
+    """
+
+    def __init__(self, config=None):
+        self.config = config or PeopleConfig()
+        self.tracks = []
+        self.next_id = 1
+        self.stamp_s = None
+        self.ended = []
+        self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
+                       'unassigned_detections': 0, 'time_backwards': 0}
+
+    def _predict(self, dt):
+        f = np.eye(4)
+        f[0, 2] = f[1, 3] = dt
+        q = self.config.acceleration_sigma ** 2
+        g = np.array([[dt * dt / 2, 0], [0, dt * dt / 2], [dt, 0], [0, dt]])
+        for track in self.tracks:
+            track.state = f @ track.state
+            track.covariance = f @ track.covariance @ f.T + q * (g @ g.T)
+            track.updated = False
+
+    def _correct(self, track, detection):
+        h = np.zeros((2, 4))
+        h[0, 0] = h[1, 1] = 1.0
+        r = detection.covariance + np.eye(2) * 1e-4
+        s = h @ track.covariance @ h.T + r
+        gain = track.covariance @ h.T @ np.linalg.inv(s)
+        innovation = np.array([detection.x, detection.y]) - track.state[:2]
+        track.state = track.state + gain @ innovation
+        track.covariance = (np.eye(4) - gain @ h) @ track.covariance
+        if detection.head_visible or not track.head_visible:
+            # A head cut off by the image's edge keeps the height last seen whole.
+            track.head_height = detection.head_height
+            track.head_visible = detection.head_visible
+        track.seen_head = track.seen_head or self._shows_head(detection)
+        track.cut_top = detection.cut_top
+        track.depth_spread_m = detection.depth_spread_m
+        track.confidence = detection.confidence
+        track.points = detection.points
+        track.hits += 1
+        track.updated = True
+
+    def _shows_head(self, detection):
+        """Whether a detection is a person by itself: not cut by the top edge, head high."""
+        return not detection.cut_top and \
+            detection.head_height >= self.config.min_head_height_m
+
+    def gate(self, track):
+        """Farthest a detection may be from the track: ``gate_m`` plus 3 sigma of its position."""
+        return self.config.gate_m + 3.0 * math.sqrt(max(0.0, float(np.linalg.eigvalsh(
+            track.position_covariance)[-1])))
+
+    def update(self, detections, stamp_s):
+        """
+        Feed one pair's detections; return the published tracks.
+
+        Published: confirmed (``min_hits``) and seen within ``publish_coast_s``; the others
+        are kept for their id until ``max_coast_s``.
+        """
+        self.ended = []
+        if self.stamp_s is not None and stamp_s < self.stamp_s:
+            # A replay restarted or time jumped back: start over rather than predict backwards.
+            self.counts['time_backwards'] += 1
+            self.ended = [t.track_id for t in self.tracks if t.confirmed]
+            self.tracks = []
+        dt = 0.0 if self.stamp_s is None or stamp_s < self.stamp_s else stamp_s - self.stamp_s
+        self.stamp_s = stamp_s
+        self._predict(dt)
+        assigned = set()
+        # Confirmed tracks first (a person walking up to a warm screen keeps the id; the
+        # screen's unconfirmed track gets what is left).
+        for group in ([t for t in self.tracks if t.confirmed],
+                      [t for t in self.tracks if not t.confirmed]):
+            free = [i for i in range(len(detections)) if i not in assigned]
+            if not group or not free:
+                continue
+            distance = np.array([[math.hypot(t.state[0] - detections[i].x,
+                                             t.state[1] - detections[i].y) for i in free]
+                                 for t in group])
+            gate = np.array([self.gate(t) for t in group])[:, None]
+            # A body cut off by the image's edge (a warm screen looks the same) is weak
+            # evidence: it continues a track only within ``gate_m`` of the prediction and
+            # when the track was seen within ``reacquire_cut_s``.
+            lost = np.array([stamp_s - t.last_seen_s > self.config.reacquire_cut_s
+                             for t in group])[:, None]
+            cut = np.array([detections[i].cut_top for i in free])[None, :]
+            distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
+                                distance)
+            cost = np.where(distance <= gate, distance, 1e6)
+            for row, col in zip(*linear_sum_assignment(cost)):
+                if distance[row, col] <= gate[row, 0]:
+                    self._correct(group[row], detections[free[col]])
+                    group[row].last_seen_s = stamp_s
+                    assigned.add(free[col])
+                    self.counts['assigned'] += 1
+        for index, detection in enumerate(detections):
+            if index in assigned:
+                continue
+            self.counts['unassigned_detections'] += 1
+            covariance = np.zeros((4, 4))
+            covariance[:2, :2] = detection.covariance + np.eye(2) * 1e-4
+            covariance[2:, 2:] = np.eye(2) * 1.0     # walking speed unknown: 1 m/s sigma
+            self.tracks.append(Track(self.next_id, np.array([detection.x, detection.y, 0, 0]),
+                                     covariance, detection.head_height, detection.confidence,
+                                     detection.points, 1, stamp_s, detection.head_visible,
+                                     seen_head=self._shows_head(detection),
+                                     cut_top=detection.cut_top,
+                                     depth_spread_m=detection.depth_spread_m))
+            self.next_id += 1
+        alive = []
+        for track in self.tracks:
+            if stamp_s - track.last_seen_s > self.config.max_coast_s:
+                if track.confirmed:
+                    self.ended.append(track.track_id)
+                    self.counts['ended'] += 1
+                else:
+                    self.counts['unconfirmed_ended'] += 1
+            else:
+                alive.append(track)
+        self.tracks = alive
+        for track in self.tracks:
+            if not track.confirmed and track.hits >= self.config.min_hits and \
+                    (track.seen_head or track.travel_m >= self.config.min_travel_m):
+                # Cut off by the image's top edge and never moving: a warm object, not a person.
+                track.confirmed = True
+                self.counts['started'] += 1
+        confirmed = [t for t in self.tracks if t.confirmed]
+        return [t for t in confirmed
+                if stamp_s - t.last_seen_s <= self.config.publish_coast_s]
+
+
+@dataclasses.dataclass
+class PeopleFrame:
+    """One pair's result: the published tracks, the detections, the points used."""
+
+    tracks: list
+    detections: list
+    ended: list
+    points_used: int
+    points_warm: int
+
+
+class PeopleEstimator:
+    """
+    Detection and tracking of one rig, fed pair by pair.
+
+    The people node and the evaluation run this one code path.
+
+    ``transform``: ``world_from_rectified(pose, R1)``. Each pair: the left rectified image
+    (optional; without it no warm filter is applied, counted as ``no_image``) and the points
+    in the rectified left frame with their left pixels, disparities and confidences.
+    """
+
+    def __init__(self, transform, config=None):
+        self.config = config or PeopleConfig()
+        self.transform = transform
+        self.background = WarmBackground(self.config)
+        self.tracker = PeopleTracker(self.config)
+        self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
+                       'points_not_warm': 0, 'detections': 0}
+
+    def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
+                left_image=None, image_shape=None):
+        """Return the PeopleFrame of one pair (see the class docstring)."""
+        self.counts['pairs'] += 1
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        self.counts['points_in'] += len(points)
+        keep = np.ones(len(points), dtype=bool)
+        if image_shape is None and left_image is not None:
+            image_shape = np.shape(left_image)
+        if left_image is not None:
+            warm = self.background.update(left_image, stamp_s)
+            if self.config.require_warm and len(points):
+                keep = warm_points(warm, x_left, y) & np.isfinite(np.asarray(x_left)) & \
+                    np.isfinite(np.asarray(y))
+        else:
+            self.counts['no_image'] += 1
+        if not len(points):
+            self.counts['no_points'] += 1
+        self.counts['points_not_warm'] += int((~keep).sum())
+        world = rectified_to_world(points[keep], self.transform)
+        detections = detect_people(
+            world, camera_centre_in_world(self.transform),
+            None if disparity is None else np.asarray(disparity)[keep], points[keep, 2],
+            None if confidence is None else np.asarray(confidence)[keep], self.config,
+            np.column_stack([np.asarray(x_left, dtype=np.float64).reshape(-1),
+                             np.asarray(y, dtype=np.float64).reshape(-1)])[keep],
+            image_shape)
+        self.counts['detections'] += len(detections)
+        tracks = self.tracker.update(detections, stamp_s)
+        return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()),
+                           int(keep.sum()) if left_image is not None else 0)

@@ -1,0 +1,306 @@
+"""
+People on the floor against the simulator's truth (``st-stereo eval people``).
+
+Every pair of a simulated sequence (each camera at its own instant, as the two free-running
+cameras see it) goes through what the nodes do: rectification, ST with the skew correction,
+then ``st_stereo.core.people`` (warm foreground, detection, tracking) with the rig's true pose.
+The truth is each person's head centre (``heads_world``); a person counts in a pair when at
+least ``VISIBLE_PX`` pixels of the left image show them (a person walking out of the image,
+or standing far off with the head above the image's top edge, is still counted while that much
+of the body is seen). Scores:
+
+- per pair, estimates and truths paired by ``scipy.optimize.linear_sum_assignment`` on the
+  horizontal distance, a pair within 0.5 m a hit: recall (hits / truths) and precision
+  (hits / estimates);
+- horizontal error of the hits (median, p95) and head height error (|estimate - truth|, on
+  the hits whose head centre is inside the image);
+- CLEAR MOT with ``motmetrics`` (MOTA, MOTP, id switches, fragmentations), the same 0.5 m;
+- the paper's measure: the spread (standard deviation) of camera depth over the points of a
+  standing person's detection.
+
+The held-out sequences (``meeting_room``, ``crossing``) were never used to choose a parameter.
+"""
+
+import dataclasses
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rectified
+
+HIT_M = 0.5
+VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view
+TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down')
+HELD_OUT_SEQUENCES = ('meeting_room', 'crossing')
+
+
+def heads_in_image(heads_rectified, model, shape, margin_px=0.0):
+    """Whether each head centre (rectified left frame) projects inside the left image."""
+    heads = np.asarray(heads_rectified, dtype=np.float64).reshape(-1, 3)
+    z = np.where(heads[:, 2] > 0, heads[:, 2], np.nan)
+    u = model.fx * heads[:, 0] / z + model.cx
+    v = model.fy * heads[:, 1] / z + model.cy
+    inside = (u >= -0.5 + margin_px) & (u <= shape[1] - 0.5 - margin_px) & \
+        (v >= -0.5 + margin_px) & (v <= shape[0] - 0.5 - margin_px)
+    return np.nan_to_num(inside, nan=False).astype(bool)
+
+
+def pair_estimates(truth_xy, estimate_xy, threshold=HIT_M):
+    """Hits of one pair: ``[(truth index, estimate index, distance)]`` within ``threshold``."""
+    if not len(truth_xy) or not len(estimate_xy):
+        return []
+    distance = np.linalg.norm(np.asarray(truth_xy)[:, None, :2] -
+                              np.asarray(estimate_xy)[None, :, :2], axis=2)
+    rows, cols = linear_sum_assignment(np.where(distance <= threshold, distance, 1e6))
+    return [(int(r), int(c), float(distance[r, c])) for r, c in zip(rows, cols)
+            if distance[r, c] <= threshold]
+
+
+@dataclasses.dataclass
+class PeopleTally:
+    """Per-pair hits, misses, false detections and errors of one sequence."""
+
+    truths: int = 0
+    estimates: int = 0
+    hits: int = 0
+    pairs: int = 0
+    horizontal: list = dataclasses.field(default_factory=list)
+    height: list = dataclasses.field(default_factory=list)
+    depth_spread: list = dataclasses.field(default_factory=list)
+    frames: list = dataclasses.field(default_factory=list)   # (truth ids, xy, track ids, xy)
+    milliseconds: list = dataclasses.field(default_factory=list)   # people stage per pair
+
+    def add(self, truth_ids, truth_heads, tracks, head_seen=None):
+        """
+        Score one pair: visible truths (ids, head centres in the world) and the tracks.
+
+        ``head_seen``: per truth, whether its head centre is in the image (height scored).
+        """
+        estimate = np.array([[t.state[0], t.state[1], t.head_height] for t in tracks]) \
+            .reshape(-1, 3)
+        truth = np.asarray(truth_heads, dtype=np.float64).reshape(-1, 3)
+        hits = pair_estimates(truth[:, :2], estimate[:, :2])
+        self.pairs += 1
+        self.truths += len(truth)
+        self.estimates += len(estimate)
+        self.hits += len(hits)
+        for r, c, distance in hits:
+            self.horizontal.append(distance)
+            if head_seen is None or head_seen[r]:
+                self.height.append(abs(estimate[c, 2] - truth[r, 2]))
+                if np.isfinite(tracks[c].depth_spread_m):
+                    self.depth_spread.append(tracks[c].depth_spread_m)
+        self.frames.append((list(truth_ids), truth[:, :2].copy(), [t.track_id for t in tracks],
+                            estimate[:, :2].copy()))
+
+    def mot(self):
+        """CLEAR MOT metrics (motmetrics) over the sequence: mota, motp, switches, fragments."""
+        import motmetrics
+        accumulator = motmetrics.MOTAccumulator(auto_id=True)
+        for truth_ids, truth_xy, track_ids, track_xy in self.frames:
+            distance = motmetrics.distances.norm2squared_matrix(
+                truth_xy, track_xy, max_d2=HIT_M ** 2) if len(truth_xy) and len(track_xy) \
+                else np.zeros((len(truth_xy), len(track_xy)))
+            accumulator.update(truth_ids, track_ids, np.sqrt(distance))
+        summary = motmetrics.metrics.create().compute(
+            accumulator, metrics=['mota', 'motp', 'num_switches', 'num_fragmentations'],
+            name='sequence')
+        row = summary.iloc[0]
+        return {'mota': float(row['mota']), 'motp_m': float(row['motp']),
+                'id_switches': int(row['num_switches']),
+                'fragmentations': int(row['num_fragmentations'])}
+
+    def row(self):
+        """Return the sequence's scores as one dict."""
+        def stat(values, q):
+            return float(np.percentile(values, q)) if values else float('nan')
+        out = {'pairs': self.pairs, 'truths': self.truths, 'estimates': self.estimates,
+               'recall': self.hits / self.truths if self.truths else float('nan'),
+               'precision': self.hits / self.estimates if self.estimates else float('nan'),
+               'horizontal_median_m': stat(self.horizontal, 50),
+               'horizontal_p95_m': stat(self.horizontal, 95),
+               'height_median_m': stat(self.height, 50), 'height_p95_m': stat(self.height, 95),
+               'depth_spread_median_m': stat(self.depth_spread, 50),
+               'people_ms_median': stat(self.milliseconds, 50),
+               'people_ms_p95': stat(self.milliseconds, 95)}
+        out.update(self.mot())
+        return out
+
+
+def visible_people(labels, count):
+    """Whether each of ``count`` people shows at least ``VISIBLE_PX`` pixels in ``labels``."""
+    from st_stereo.sim.sequences import PERSON_LABEL_BASE
+    return np.array([np.count_nonzero(labels == PERSON_LABEL_BASE + i) >= VISIBLE_PX
+                     for i in range(count)], dtype=bool)
+
+
+class PeopleScoring:
+    """One rig's pairs through rectification, ST and the people stage, scored (a PeopleTally)."""
+
+    def __init__(self, rectifier, left_calibration, pose, config=None, people_config=None):
+        from st_stereo.tools.eval_points import PairMatching
+        self.rectifier = rectifier
+        self.matching = PairMatching(rectifier, config)
+        self.estimator = PeopleEstimator(
+            world_from_rectified(pose, left_calibration.rectification),
+            people_config or PeopleConfig())
+        self.tally = PeopleTally()
+
+    def pair(self, left_raw, right_raw, t_left, t_right, labels, heads_world, heads_rectified):
+        """Match one pair, run the people stage and score it against the truth."""
+        import time
+        result = self.matching.match(left_raw, right_raw, t_left, t_right - t_left)
+        left = self.rectifier.rectify(left_raw, left_raw)[0]
+        start = time.perf_counter()
+        people = self.estimator.process(t_left, result.points, result.x_left, result.y,
+                                        result.disparity, result.confidence, left)
+        self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
+        visible = visible_people(labels, len(heads_world))
+        head_seen = heads_in_image(heads_rectified, self.rectifier.model, left.shape)
+        self.tally.add(np.flatnonzero(visible), np.asarray(heads_world)[visible],
+                       people.tracks, head_seen[visible])
+        return people
+
+
+def evaluate_sequence(spec, config=None, people_config=None, textures=None, max_pairs=None):
+    """Run one simulated sequence through ST and the people stage; return the PeopleTally."""
+    from st_stereo.core.rectification import StereoRectifier
+    from st_stereo.sim.sequences import SequenceRenderer
+    renderer = SequenceRenderer(spec, textures=textures)
+    calibrations = spec.rig.calibrations()
+    scoring = PeopleScoring(StereoRectifier(*calibrations), calibrations[0],
+                            spec.rig.rig_pose(), config, people_config)
+    for index, (t_left, t_right) in enumerate(spec.pair_times()):
+        if max_pairs and index >= max_pairs:
+            break
+        frame = renderer.frame(t_left, right_t=t_right)
+        scoring.pair(frame['left'], frame['right'], t_left, t_right, frame['truth'].labels,
+                     frame['heads_world'], frame['heads_rectified'])
+    return scoring.tally
+
+
+def evaluate_recording(recording, config=None, people_config=None, max_pairs=None):
+    """
+    Run a recording with ground truth (bag, left/right.yaml, rig_pose.yaml, npz) through.
+
+    The rig pose is the recording's ``rig_pose.yaml`` (the simulator's truth for the bundled
+    one); the instants each image shows come from the ground truth.
+    """
+    import pathlib
+
+    from st_stereo.core.camera_calibration import load_calibration
+    from st_stereo.core.rectification import StereoRectifier
+    from st_stereo.core.rig_pose import load_rig_pose
+    from st_stereo.sim.recording import load_ground_truth
+    from st_stereo.tools.eval_points import recording_pairs
+    recording = pathlib.Path(recording)
+    truth = load_ground_truth(recording)
+    left, right = (load_calibration(recording / f'{side}.yaml') for side in ('left', 'right'))
+    scoring = PeopleScoring(StereoRectifier(left, right), left,
+                            load_rig_pose(recording / 'rig_pose.yaml'), config, people_config)
+    stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
+    for index, (stamp, left_raw, right_raw) in enumerate(recording_pairs(recording)):
+        if max_pairs and index >= max_pairs:
+            break
+        frame = int(np.argmin(np.abs(stamps - stamp)))
+        if stamps[frame] != stamp:
+            raise ValueError(f'{recording}: pair at {stamp} ns has no ground-truth frame')
+        t_left, t_right = ((int(truth[key][frame]) - int(stamps[0])) * 1e-9
+                           for key in ('left_stamp_ns', 'right_stamp_ns'))
+        scoring.pair(left_raw, right_raw, t_left, t_right, truth['labels'][frame],
+                     truth['heads_world'][frame], truth['heads_rectified'][frame])
+    return scoring.tally
+
+
+def evaluate(sequences=TUNING_SEQUENCES + HELD_OUT_SEQUENCES, config=None, people_config=None,
+             recording=None, max_pairs=None, log=None):
+    """Score each named sequence (and the recording if given): ``({name: row}, tallies)``."""
+    from st_stereo.sim.sequences import load_textures, standard_sequences
+    textures, specs = load_textures(), standard_sequences()
+    tallies = {}
+    for name in sequences:
+        tallies[name] = evaluate_sequence(specs[name], config, people_config, textures,
+                                          max_pairs)
+        if log:
+            log(f'{name}: {tallies[name].pairs} pairs')
+    if recording is not None:
+        tallies['recording'] = evaluate_recording(recording, config, people_config, max_pairs)
+        if log:
+            log(f'recording: {tallies["recording"].pairs} pairs')
+    return {name: tally.row() for name, tally in tallies.items()}, tallies
+
+
+def plot_floor_plans(tallies, path):
+    """Write the floor plan of each sequence: true head tracks (lines), estimates (dots)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(1, len(tallies), figsize=(3.4 * len(tallies), 3.6),
+                                squeeze=False)
+    for axis, (name, tally) in zip(axes[0], tallies.items()):
+        truths, estimates = {}, {}
+        for truth_ids, truth_xy, track_ids, track_xy in tally.frames:
+            for key, xy in zip(truth_ids, truth_xy):
+                truths.setdefault(key, []).append(xy)
+            for key, xy in zip(track_ids, track_xy):
+                estimates.setdefault(key, []).append(xy)
+        for key, xy in truths.items():
+            xy = np.array(xy)
+            axis.plot(xy[:, 0], xy[:, 1], '-', color='0.3', linewidth=3, alpha=0.4)
+        for key, xy in estimates.items():
+            xy = np.array(xy)
+            axis.plot(xy[:, 0], xy[:, 1], '.', markersize=3, label=f'id {key}')
+        axis.set_title(f'{name} (held out)' if name in HELD_OUT_SEQUENCES else name, fontsize=9)
+        axis.set_xlabel('x (m)')
+        axis.set_ylabel('y (m), away from the rig')
+        axis.set_aspect('equal')
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=6, loc='best')
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def checks(report):
+    """Return the criteria per sequence: ``(sequence, criterion, value, target, met)``."""
+    out = []
+    for name, row in report.items():
+        for key, label, target, better in (
+                ('recall', 'recall', 0.98, 'high'), ('precision', 'precision', 0.98, 'high'),
+                ('horizontal_median_m', 'horizontal error median (m)', 0.10, 'low'),
+                ('horizontal_p95_m', 'horizontal error p95 (m)', 0.25, 'low'),
+                ('height_median_m', 'head height error median (m)', 0.10, 'low'),
+                ('id_switches', 'id switches', 0, 'low'), ('mota', 'MOTA', 0.95, 'high')):
+            value = row[key]
+            met = value >= target if better == 'high' else value <= target
+            out.append((name, label, value, f'{">=" if better == "high" else "<="} {target}',
+                        bool(met)))
+    return out
+
+
+def markdown_timing(report):
+    """Return the people stage's wall time per pair (warm mask, detection, tracking)."""
+    lines = ['| sequence | pairs | people stage per pair, median (ms) | p95 (ms) |',
+             '|---|---:|---:|---:|']
+    for name, row in report.items():
+        lines.append(f'| {name} | {row["pairs"]} | {row["people_ms_median"]:.2f} | '
+                     f'{row["people_ms_p95"]:.2f} |')
+    return '\n'.join(lines)
+
+
+def markdown_table(report):
+    """One row per sequence; the held-out ones marked."""
+    lines = ['| sequence | pairs | people | recall | precision | horizontal median / p95 (m) | '
+             'head height median / p95 (m) | MOTA | MOTP (m) | id switches | fragmentations | '
+             'depth spread on a person, median (m) |',
+             '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
+    for name, row in report.items():
+        title = f'{name} (held out)' if name in HELD_OUT_SEQUENCES else name
+        lines.append(
+            f'| {title} | {row["pairs"]} | {row["truths"]} | {row["recall"]:.1%} | '
+            f'{row["precision"]:.1%} | {row["horizontal_median_m"]:.3f} / '
+            f'{row["horizontal_p95_m"]:.3f} | {row["height_median_m"]:.3f} / '
+            f'{row["height_p95_m"]:.3f} | {row["mota"]:.3f} | {row["motp_m"]:.3f} | '
+            f'{row["id_switches"]} | {row["fragmentations"]} | '
+            f'{row["depth_spread_median_m"]:.3f} |')
+    return '\n'.join(lines)

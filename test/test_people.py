@@ -1,0 +1,272 @@
+"""
+People on the floor (st_stereo.core.people), its messages and its scoring, without rclpy.
+
+The geometry is checked against the simulator's own camera model (not the code's), the
+detector on synthetic point sets with known people, the tracker on scripted walks, the
+scoring against motmetrics on hand-made tracks.
+"""
+
+import math
+import pathlib
+import types
+
+import numpy as np
+import pytest
+from st_stereo.core.people import (detect_people, Detection, PeopleConfig, PeopleTracker,
+                                   rectified_to_world, WarmBackground, world_from_rectified)
+from st_stereo.core.rig_pose import load_rig_pose
+from st_stereo.nodes.conversions import point_cloud_fields
+from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
+                                             detections_cloud, markers_msg, poses_msg)
+from st_stereo.sim.sequences import standard_sequences
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+CAMERA = np.array([0.0, 0.0, 2.9])
+
+
+def test_rectified_points_go_to_the_room_as_the_simulator_placed_them():
+    rig = standard_sequences()['walk_across'].rig
+    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
+    world = np.array([[0.5, 2.0, 1.0], [-1.0, 3.0, 1.7], [0.2, 4.0, 0.0], [1.3, 2.5, 0.4]])
+    back = rectified_to_world(rig.to_rectified_left(world), transform)
+    np.testing.assert_allclose(back, world, atol=1e-9)
+
+
+def test_the_bundled_recording_ships_its_true_rig_pose():
+    pose = load_rig_pose(REPO / 'data' / 'recordings' / 'office' / 'rig_pose.yaml')
+    assert pose == standard_sequences()['office'].rig.rig_pose()
+
+
+@pytest.mark.parametrize('field, value, message', [
+    ('min_points', 0, 'min_points: expected an integer >= 1'),
+    ('gate_m', -1.0, 'gate_m: expected a number > 0'),
+    ('publish_coast_s', 9.0, 'publish_coast_s: expected 0 .. max_coast_s'),
+    ('min_confidence', 1.5, 'min_confidence: expected 0..1'),
+])
+def test_a_bad_people_parameter_names_itself(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        PeopleConfig(**{field: value})
+
+
+def person_points(x, y, head=1.7, count=120, seed=0, radius=0.12):
+    """Points on a standing person's front (the side facing a camera at the origin)."""
+    rng = np.random.default_rng(seed)
+    heights = rng.uniform(0.2, head + 0.08, count)
+    angle = rng.uniform(-1.2, 1.2, count) + math.atan2(-y, -x)
+    return np.column_stack([x + radius * np.cos(angle), y + radius * np.sin(angle), heights])
+
+
+def floor_and_furniture(seed=1):
+    rng = np.random.default_rng(seed)
+    floor = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(1.5, 5, 400),
+                             rng.normal(0, 0.02, 400)])
+    desk = np.column_stack([rng.uniform(1.0, 1.8, 60), rng.uniform(4.0, 4.6, 60),
+                            np.full(60, 0.74)])
+    return np.vstack([floor, desk])
+
+
+def test_two_people_among_floor_and_desk_points_are_two_detections_where_they_stand():
+    points = np.vstack([person_points(-0.8, 2.8, seed=2), person_points(0.9, 3.6, 1.6, seed=3),
+                        floor_and_furniture()])
+    detections = detect_people(points, CAMERA)
+    found = sorted((round(d.x, 1), round(d.y, 1)) for d in detections)
+    assert len(detections) == 2, detections
+    assert np.allclose(found, [(-0.8, 2.8), (0.9, 3.6)], atol=0.15)
+    heads = sorted(d.head_height for d in detections)
+    assert heads == pytest.approx([1.6, 1.7], abs=0.08)
+    # Every point of a person above min_point_height_m (0.6 m), none of the floor's.
+    assert all(d.head_visible and 75 <= d.points <= 120 for d in detections)
+
+
+def test_no_points_or_only_floor_points_are_no_detection():
+    assert detect_people(np.zeros((0, 3)), CAMERA) == []
+    assert detect_people(floor_and_furniture(), CAMERA) == []
+
+
+def test_depth_uncertainty_widens_the_covariance_along_the_view():
+    points = person_points(0.0, 3.5, seed=4)
+    z = np.full(len(points), 4.0)
+    plain = detect_people(points, CAMERA)[0].covariance
+    with_depth = detect_people(points, CAMERA, disparity=np.full(len(points), 11.0),
+                               depth=z)[0].covariance
+    # The view is along y here: y's variance grows, x's does not.
+    assert with_depth[1, 1] > plain[1, 1]
+    assert with_depth[0, 0] == pytest.approx(plain[0, 0], rel=1e-3)
+
+
+def test_a_body_cut_by_the_top_edge_is_kept_and_marked():
+    points = person_points(0.3, 4.3, head=1.7, seed=5)
+    points = points[points[:, 2] < 0.95]          # the head and shoulders above the image
+    pixels = np.column_stack([np.full(len(points), 40.0),
+                              np.where(points[:, 2] > 0.8, 5.0, 30.0)])
+    without_edge = detect_people(points, CAMERA)
+    assert without_edge == []                     # too low for a whole person
+    cut = detect_people(points, CAMERA, pixels=pixels, image_shape=(60, 80))
+    assert len(cut) == 1 and cut[0].cut_top and not cut[0].head_visible
+
+
+def test_the_warm_background_sees_a_person_there_from_the_first_frame_and_ignores_an_ffc():
+    rng = np.random.default_rng(0)
+    room = 8000 + rng.normal(0, 5, (60, 80))
+    person = np.zeros((60, 80), dtype=bool)
+    person[20:45, 30:38] = True
+    background = WarmBackground(PeopleConfig(warm_margin_counts=100.0))
+    for index in range(30):
+        image = room + rng.normal(0, 5, room.shape) + 250 * person
+        if index >= 20:
+            image += 400                          # a flat-field correction's offset jump
+        warm = background.update(image, 0.115 * index)
+        assert warm[person].mean() > 0.95, index
+        assert warm[~person].mean() < 0.01, index
+
+
+def test_the_warm_background_learns_a_cool_change_and_ignores_pixels_without_data():
+    background = WarmBackground(PeopleConfig(background_time_s=1.0))
+    image = np.full((60, 80), 8000.0)
+    image[:, :5] = 0                              # outside the raw image after rectification
+    background.update(image, 0.0)
+    image[30:, :] += 300                          # the floor warms up (sun), no one there
+    image[:, :5] = 0
+    warmed = [background.update(image, 0.0 + t).mean() for t in np.arange(0.1, 6.0, 0.1)]
+    assert warmed[0] > 0.3
+    assert warmed[-1] < 0.01                      # stays warm only while learning
+
+
+def walk(start, velocity, times, head=1.7):
+    return [Detection(start[0] + velocity[0] * t, start[1] + velocity[1] * t, head, 100, 1.0,
+                      np.eye(2) * 1e-3) for t in times]
+
+
+def test_two_people_crossing_keep_their_ids_and_velocity():
+    times = np.arange(0, 4, 0.115)
+    a = walk((-1.5, 3.0), (1.0, 0.1), times)
+    b = walk((1.5, 3.3), (-1.0, -0.1), times)
+    tracker = PeopleTracker()
+    seen = {}
+    for t, da, db in zip(times, a, b):
+        for track in tracker.update([da, db], t):
+            seen.setdefault(track.track_id, []).append((t, track.state.copy()))
+    assert len(seen) == 2
+    for states in seen.values():
+        xs = [s[0] for _, s in states]
+        assert abs(xs[-1] - xs[0]) > 3.0           # each id follows one walker across
+        assert abs(abs(states[-1][1][2]) - 1.0) < 0.1   # vx
+
+
+def test_a_short_occlusion_keeps_the_id_and_a_long_one_ends_the_track():
+    config = PeopleConfig()
+    tracker = PeopleTracker(config)
+    times = np.arange(0, 6, 0.115)
+    detections = walk((0.0, 3.0), (0.5, 0.0), times)
+    ids, ended = set(), []
+    for t, detection in zip(times, detections):
+        occluded = 1.0 <= t < 1.4 or t >= 3.0
+        for track in tracker.update([] if occluded else [detection], t):
+            ids.add(track.track_id)
+        ended += tracker.ended
+    assert ids == {1}
+    assert ended == [1]
+    assert tracker.tracks == []
+
+
+def test_a_static_warm_object_cut_by_the_top_edge_is_never_a_person():
+    tracker = PeopleTracker()
+    screen = Detection(1.3, 4.5, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    for t in np.arange(0, 5, 0.115):
+        assert tracker.update([screen], t) == []
+    assert tracker.counts['started'] == 0
+
+
+def test_time_going_back_starts_over():
+    tracker = PeopleTracker()
+    for t, d in zip((0.0, 0.115, 0.23), walk((0, 3), (0, 0), (0.0, 0.115, 0.23))):
+        tracker.update([d], t)
+    assert tracker.update([], 0.0) == []
+    assert tracker.ended == [1] and tracker.counts['time_backwards'] == 1
+
+
+def _tracks():
+    tracker = PeopleTracker()
+    for t, d in zip((0.0, 0.115), walk((0.5, 3.0), (1.0, 0.0), (0.0, 0.115), head=1.65)):
+        tracks = tracker.update([d], t)
+    return tracks
+
+
+def test_the_detections_cloud_holds_every_documented_field():
+    tracks = _tracks()
+    header = Header(frame_id='map')
+    header.stamp.sec = 12
+    cloud = detections_cloud(header, tracks)
+    assert cloud.header.frame_id == 'map' and cloud.width == 1
+    fields = point_cloud_fields(cloud, DETECTION_FIELDS)
+    assert fields['id'][0] == tracks[0].track_id
+    assert fields['height'][0] == pytest.approx(1.65)
+    assert fields['x'][0] == pytest.approx(tracks[0].state[0], abs=1e-6)
+    assert fields['cov_xx'][0] > 0 and fields['z'][0] == 0.0
+    empty = detections_cloud(header, [])
+    assert empty.width == 0 and point_cloud_fields(empty, ('x',))['x'].size == 0
+
+
+def test_poses_face_the_walking_direction_and_ended_tracks_delete_their_markers():
+    tracks = _tracks()
+    header = Header(frame_id='map')
+    pose = poses_msg(header, tracks).poses[0]
+    yaw = 2 * math.atan2(pose.orientation.z, pose.orientation.w)
+    assert yaw == pytest.approx(math.atan2(tracks[0].state[3], tracks[0].state[2]), abs=1e-6)
+    markers = markers_msg(header, tracks, ended=[7]).markers
+    assert [(m.ns, m.id, m.action) for m in markers] == [
+        ('people', 1, Marker.ADD), ('people_ids', 1, Marker.ADD),
+        ('people', 7, Marker.DELETE), ('people_ids', 7, Marker.DELETE)]
+    assert markers[1].text == '1'
+
+
+def test_detection3d_array_with_a_stand_in_vision_msgs_module():
+    """vision_msgs does not install from the package index: a stand-in with its fields."""
+    def message(**fields):
+        return lambda: types.SimpleNamespace(**{k: v() for k, v in fields.items()})
+    point = message(x=float, y=float, z=float)
+    quaternion = message(x=float, y=float, z=float, w=float)
+    pose = message(position=point, orientation=quaternion)
+    fake = types.SimpleNamespace(
+        Detection3DArray=message(header=Header, detections=list),
+        Detection3D=message(header=Header, id=str, results=list,
+                            bbox=message(center=pose, size=point)),
+        ObjectHypothesisWithPose=message(
+            hypothesis=message(class_id=str, score=float),
+            pose=message(pose=pose, covariance=list)))
+    tracks = _tracks()
+    msg = detection3d_msg(fake, Header(frame_id='map'), tracks)
+    detection = msg.detections[0]
+    assert detection.id == str(tracks[0].track_id)
+    assert detection.results[0].hypothesis.class_id == 'person'
+    assert detection.bbox.center.position.x == pytest.approx(tracks[0].state[0])
+    assert len(detection.results[0].pose.covariance) == 36
+
+
+def _scored(frames):
+    from st_stereo.tools.eval_people import PeopleTally
+    tally = PeopleTally()
+    for truth, estimates in frames:
+        tracks = [types.SimpleNamespace(state=np.array([x, y, 0.0, 0.0]), head_height=h,
+                                        track_id=i, depth_spread_m=0.2)
+                  for i, x, y, h in estimates]
+        tally.add(list(range(len(truth))), np.array(truth).reshape(-1, 3), tracks)
+    return tally.row()
+
+
+def test_the_people_scores_count_hits_misses_false_people_and_id_switches():
+    heads = [(0.0, 3.0, 1.7), (1.0, 3.0, 1.6)]
+    perfect = _scored([(heads, [(1, 0.05, 3.0, 1.7), (2, 1.0, 3.1, 1.5)])] * 4)
+    assert perfect['recall'] == perfect['precision'] == perfect['mota'] == 1.0
+    assert perfect['horizontal_median_m'] == pytest.approx(0.075, abs=1e-9)
+    assert perfect['height_median_m'] == pytest.approx(0.05, abs=1e-9)
+    # The second person missed in one pair, a false one 2 m away, then an id switch.
+    row = _scored([(heads, [(1, 0.0, 3.0, 1.7), (2, 1.0, 3.0, 1.6)]),
+                   (heads, [(1, 0.0, 3.0, 1.7), (3, 3.0, 1.0, 1.6)]),
+                   (heads, [(4, 0.0, 3.0, 1.7), (2, 1.0, 3.0, 1.6)])])
+    assert row['recall'] == pytest.approx(5 / 6) and row['precision'] == pytest.approx(5 / 6)
+    assert row['id_switches'] == 1
+    assert row['mota'] == pytest.approx(1 - (1 + 1 + 1) / 6)
