@@ -37,6 +37,7 @@ setup(
             'lepton_driver = st_stereo.nodes.driver_node:main',
             'rectifier = st_stereo.nodes.rectifier_node:main',
             'matcher = st_stereo.nodes.matcher_node:main',
+            'people = st_stereo.nodes.people_node:main',
             'stereo_pipeline = st_stereo.nodes.pipeline:main',
             'bag_record = st_stereo.nodes.bags:record_main',
             'bag_play = st_stereo.nodes.bags:play_main',

@@ -95,7 +95,10 @@ def static_transform_nodes(transforms, namespace, use_sim_time):
 
 def stereo_nodes(value, calibrations_for_tf=None):
     """
-    Return the rectifier, the matcher and (unless ``publish_tf`` is false) the static TF.
+    Return the rectifier, the matcher, the people node and (unless ``publish_tf`` is false) TF.
+
+    The people node gets the rig pose (``rig_pose_file`` and the pose arguments over it) as
+    its parameters, after the parameter file's: one pose for the transforms and the people.
 
     ``value(name)``: a launch argument's performed text. The transforms' calibration is the
     driver's (``calibration_urls``) unless ``calibrations_for_tf(value)`` gives another.
@@ -107,6 +110,12 @@ def stereo_nodes(value, calibrations_for_tf=None):
                   namespace=namespace, parameters=[params_file, {'use_sim_time': use_sim_time}],
                   ros_arguments=['--log-level', value('log_level')], output='screen')
              for executable in ('rectifier', 'matcher')]
+    pose = rig_pose(value)
+    people = {'use_sim_time': use_sim_time, 'world_frame': pose.world_frame}
+    people.update({field: float(getattr(pose, field)) for field in POSE_FIELDS[2:]})
+    nodes.append(Node(package='st_stereo', executable='people', name='people',
+                      namespace=namespace, parameters=[params_file, people],
+                      ros_arguments=['--log-level', value('log_level')], output='screen'))
     if flag(value('publish_tf'), 'publish_tf'):
         calibrations = calibrations_for_tf(value) if calibrations_for_tf else \
             [load_calibration(resolve_url(url)) for url in calibration_urls(value)]

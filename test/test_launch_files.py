@@ -242,6 +242,14 @@ def test_rig_pose_launch_arguments_override_the_file(rig_files):
         node for node in nodes if node.executable == 'static_transform_publisher'))
     assert (parent, child) == ('lab', 'rig_a')
     np.testing.assert_allclose(translation, [1.25, -0.5, 3.1], atol=1e-12)
+    # The people node places people with the same pose as the transforms.
+    people = next(node for node in nodes if node.executable == 'people')
+    given = {key: value for entry in people.parameters if isinstance(entry, dict)
+             for key, value in entry.items()}
+    expected = load_rig_pose(pose)
+    assert given['world_frame'] == 'lab' and given['height_m'] == 3.1
+    for field in ('x_m', 'y_m', 'yaw_deg', 'tilt_deg', 'roll_deg'):
+        assert given[field] == getattr(expected, field), field
     with pytest.raises(ValueError, match='launch argument tilt_deg: expected a number'):
         launch('st_stereo.launch.py', tilt_deg='steep')
 

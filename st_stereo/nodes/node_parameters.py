@@ -96,6 +96,30 @@ MATCHER_PARAMETERS = [
                   "matched in the executor's thread, in arrival order (offline replays)"),
 ]
 
+PEOPLE_PARAMETERS = [
+    NodeParameter('world_frame', 'map', 'frame of the people topics: the room at floor level, '
+                  'z up (the rig pose, config/rig_pose.yaml, places the rig in it)'),
+    NodeParameter('x_m', 0.0, "rig pose: the left camera's position in the room, metres"),
+    NodeParameter('y_m', 0.0, "rig pose: the left camera's position in the room, metres"),
+    NodeParameter('height_m', 2.7, "rig pose: the left camera's optical centre above the "
+                  'floor, metres'),
+    NodeParameter('yaw_deg', 0.0, "rig pose: heading of the rig's tilt direction about the "
+                  "world's z, degrees"),
+    NodeParameter('tilt_deg', 0.0, 'rig pose: optical axis from straight down, degrees'),
+    NodeParameter('roll_deg', 0.0, 'rig pose: image rotation about the optical axis, degrees'),
+    NodeParameter('use_image', True, 'pair points2 with left/image_rect (exact stamp) for the '
+                  'warm foreground; false: points2 alone (require_warm has no effect)'),
+    NodeParameter('target_frequency', 8.7, 'expected rate of the people topics, Hz (the '
+                  'diagnostics say WARN more than 20 % away from it)', live=True),
+]
+
+
+def people_config_parameters():
+    """Return the PeopleConfig fields as read-only NodeParameters (``st_stereo.core.people``)."""
+    from st_stereo.core.people import people_fields
+    return [NodeParameter(name, default, description)
+            for name, _, default, description in people_fields()]
+
 
 def _sections(document, path=()):
     """Yield ``(node path tokens, ros__parameters)`` of a ROS 2 parameter file, file order."""

@@ -1,5 +1,5 @@
 """
-``stereo_pipeline``: driver, rectifier and matcher in one process on one executor.
+``stereo_pipeline``: driver, rectifier, matcher and people in one process on one executor.
 
 Python has no intra-process transport; several nodes on one executor is its form of
 composition. The same parameter file as the separate nodes applies (node names unchanged).
@@ -15,19 +15,22 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, PointCloud2
 
-from st_stereo.nodes.conversions import point_cloud_array
+from st_stereo.nodes.conversions import point_cloud_array, point_cloud_fields
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.people_messages import DETECTION_FIELDS
+from st_stereo.nodes.people_node import PeopleNode
 from st_stereo.nodes.rectifier_node import RectifierNode
 from st_stereo.nodes.runtime import with_default_namespace
 
 
 def build_nodes(args=None):
-    """Create the three nodes of the pipeline (rclpy must be initialised)."""
+    """Create the four nodes of the pipeline (rclpy must be initialised)."""
     # The driver last: it starts publishing at once, and the matcher loads its kernels first.
     matcher = MatcherNode()
     rectifier = RectifierNode()
-    return [DriverNode(), rectifier, matcher]
+    people = PeopleNode()
+    return [DriverNode(), rectifier, matcher, people]
 
 
 class SuiteMonitor(Node):
@@ -42,10 +45,15 @@ class SuiteMonitor(Node):
     rectifying, matching and the transports add, without the cameras' readout.
     """
 
-    def __init__(self, driver=None, watch_raw=False, **kwargs):
+    def __init__(self, driver=None, watch_raw=False, watch_people=False, **kwargs):
         super().__init__('suite_monitor', **with_default_namespace(kwargs))
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
+        self.people = {}          # stamp in ns -> people/detections rows (with watch_people)
+        self.people_times = []    # wall times people/detections arrived
+        if watch_people:
+            self.create_subscription(PointCloud2, 'people/detections', self._on_people,
+                                     qos_profile_sensor_data)
         self.driver = driver
         self.raw_received = {}    # stamp key -> wall time left/image_raw arrived here
         self.raw_count = 0        # left/image_raw messages received (with watch_raw)
@@ -57,6 +65,13 @@ class SuiteMonitor(Node):
         self.times, self.latencies, self.matches, self.depths = [], [], [], []
         self.stamp_latencies, self.pair_latencies = [], []
         self.clouds = {}          # stamp in ns -> points (n, 3)
+
+    def _on_people(self, msg):
+        self.people_times.append(time.time())
+        key = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        fields = point_cloud_fields(msg, DETECTION_FIELDS)
+        self.people[key] = np.column_stack([fields[name] for name in DETECTION_FIELDS]) \
+            .reshape(-1, len(DETECTION_FIELDS))
 
     def _on_diagnostics(self, msg):
         for status in msg.status:

@@ -1,10 +1,12 @@
 """
 The main job (``st-stereo-suite``): the node suite in one process on a finite stream.
 
-Driver, rectifier and matcher (``st_stereo.nodes``) on one executor with a ``SuiteMonitor``,
-fed by the bundled recording (or a simulated plane); prints a status line per second, a
-summary, and, when the recording has ground truth, every received point scored against it
-(``st_stereo.sim.scoring``). Composition alone is ``st_stereo.nodes.pipeline``.
+Driver, rectifier, matcher and people (``st_stereo.nodes``) on one executor with a
+``SuiteMonitor``, fed by the bundled recording (or a simulated plane); prints a status line per
+second, a summary, and, when the recording has ground truth, every received point scored
+against it (``st_stereo.sim.scoring``) and the people found against the true ones
+(``st_stereo.tools.eval_people``; the rig pose is the recording's ``rig_pose.yaml``).
+Composition alone is ``st_stereo.nodes.pipeline``.
 """
 
 import time
@@ -16,6 +18,7 @@ from rclpy.parameter import Parameter
 
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
+from st_stereo.nodes.people_node import PeopleNode
 from st_stereo.nodes.pipeline import SuiteMonitor
 from st_stereo.nodes.rectifier_node import RectifierNode
 
@@ -42,6 +45,7 @@ def run_suite(argv=None):
     args, ros_args = parser.parse_known_args(argv)
     rclpy.init(args=['st-stereo-suite', *ros_args] if ros_args else None)
     truth = None
+    people_overrides = []
     if args.sim:
         driver_overrides = [Parameter('duration', value=float(args.seconds)),
                             Parameter('sim_depth', value=float(args.depth))]
@@ -61,19 +65,27 @@ def run_suite(argv=None):
             for side in ('left', 'right') if (recording / f'{side}.yaml').is_file()]
         if (recording / 'ground_truth.npz').is_file():
             truth = load_ground_truth(recording)
+        if (recording / 'rig_pose.yaml').is_file():
+            from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS
+            pose = load_rig_pose(recording / 'rig_pose.yaml')
+            people_overrides = [Parameter('world_frame', value=pose.world_frame)] + [
+                Parameter(field, value=float(getattr(pose, field)))
+                for field in POSE_FIELDS[2:]]
         source = f'recording {recording}'
     # Every pair of the replay is matched, in order (keep_latest off): the summary is the
     # same on every run, whatever else the machine is doing. The matcher (its kernels load at
     # start) and the rectifier exist before the driver starts publishing.
     matcher = MatcherNode(parameter_overrides=[Parameter('keep_latest', value=False)])
     rectifier = RectifierNode()
+    people = PeopleNode(parameter_overrides=people_overrides)
     driver = DriverNode(parameter_overrides=driver_overrides)
-    nodes = [driver, rectifier, matcher, SuiteMonitor(driver)]
+    nodes = [driver, rectifier, matcher, people, SuiteMonitor(driver, watch_people=True)]
     monitor = nodes[-1]
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
-    print(f'st_stereo suite: {source}: lepton_driver -> rectifier -> matcher', flush=True)
+    print(f'st_stereo suite: {source}: lepton_driver -> rectifier -> matcher -> people',
+          flush=True)
     started = time.monotonic()
     next_report = started + 1.0
     try:
@@ -85,8 +97,9 @@ def run_suite(argv=None):
                 recent = [t for t in monitor.times if t > time.time() - 1.0]
                 latency = np.median(monitor.latencies[-len(recent):]) * 1e3 if recent else 0
                 matches = monitor.matches[-1] if monitor.matches else 0
+                found = len(monitor.people[max(monitor.people)]) if monitor.people else 0
                 print(f't={now - started:5.1f}s  {len(recent):2d} fps  latency '
-                      f'{latency:6.1f} ms  matches {matches:4d}  pairs '
+                      f'{latency:6.1f} ms  matches {matches:4d}  people {found}  pairs '
                       f'{driver.published:4d}', flush=True)
             if driver.finished.is_set() and now - started > 1.0:
                 # Let the last pair go through the pipeline.
@@ -98,8 +111,10 @@ def run_suite(argv=None):
         print('interrupted', flush=True)
     finally:
         print_summary(driver, matcher, monitor, args.depth if args.sim else None)
+        print_people_summary(monitor, people)
         if truth is not None:
             print_truth_comparison(monitor, truth, matcher)
+            print_people_truth(monitor, truth, people)
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
@@ -152,6 +167,54 @@ def print_truth_comparison(monitor, truth, matcher):
         print(f'    skew {row["skew_ms"][0]:+.0f} to {row["skew_ms"][1]:+.0f} ms, '
               f'{speed:>11}: {row["matches"]:6d} matches, median {row["median"]:+.3f} px, '
               f'median abs {row["median_abs"]:.3f} px, p90 abs {row["p90_abs"]:.3f} px')
+
+
+def print_people_summary(monitor, people):
+    """Print the people topics as received: rate, people per pair, ids."""
+    times = monitor.people_times
+    rate = f', {(len(times) - 1) / (times[-1] - times[0]):.2f} per second' \
+        if len(times) > 1 and times[-1] > times[0] else ''
+    counts = [len(rows) for rows in monitor.people.values()]
+    ids = sorted({int(i) for rows in monitor.people.values() for i in rows[:, 3]})
+    print(f'  people/detections received: {len(times)}{rate}; people per pair: median '
+          f'{np.median(counts) if counts else 0:.0f}, max {max(counts, default=0)}; '
+          f'track ids {ids}')
+    print(f'  people node: {people.counts}; tracks {people.estimator.tracker.counts}'
+          if people.estimator is not None else f'  people node: {people.counts}')
+
+
+def print_people_truth(monitor, truth, people):
+    """Print the people received against a recording's true heads (tools.eval_people)."""
+    import types
+
+    from st_stereo.tools.eval_people import heads_in_image, HIT_M, PeopleTally, visible_people
+    if 'heads_world' not in truth or people.camera_info is None:
+        return
+    stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
+    p = np.array(people.camera_info.p, dtype=np.float64).reshape(3, 4)
+    model = types.SimpleNamespace(fx=p[0, 0], fy=p[1, 1], cx=p[0, 2], cy=p[1, 2])
+    shape = (people.camera_info.height, people.camera_info.width)
+    tally = PeopleTally()
+    for stamp in sorted(monitor.people):
+        index = int(np.argmin(np.abs(stamps - stamp)))
+        if abs(int(stamps[index]) - stamp) > 1000:
+            continue
+        tracks = [types.SimpleNamespace(state=row[[0, 1, 4, 5]], head_height=float(row[6]),
+                                        track_id=int(row[3]), depth_spread_m=float('nan'))
+                  for row in monitor.people[stamp]]
+        heads = np.asarray(truth['heads_world'][index])
+        visible = visible_people(truth['labels'][index], len(heads))
+        seen = heads_in_image(truth['heads_rectified'][index], model, shape)
+        tally.add(np.flatnonzero(visible), heads[visible], tracks, seen[visible])
+    if not tally.pairs:
+        print('  people against the truth: no people/detections matched a ground-truth stamp')
+        return
+    row = tally.row()
+    print(f'  people against the truth ({tally.pairs} pairs, a hit within {HIT_M} m of a head '
+          f'centre): recall {row["recall"]:.1%}, precision {row["precision"]:.1%}, horizontal '
+          f'error median {row["horizontal_median_m"]:.3f} m / p95 {row["horizontal_p95_m"]:.3f}'
+          f' m, head height error median {row["height_median_m"]:.3f} m, MOTA '
+          f'{row["mota"]:.3f}, id switches {row["id_switches"]}')
 
 
 def print_summary(driver, matcher, monitor, depth):

@@ -1,0 +1,173 @@
+"""
+``people``: people on the floor, with ids, from the matcher's points (``st_stereo.core.people``).
+
+Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence; any
+PointCloud2 with x, y, z works), ``left/image_rect`` (the warm foreground; paired with the
+points by exact stamp, ``use_image``) and ``left/camera_info`` (its R turns the rectified frame
+into the raw optical one, its P gives each point's pixel). Publishes, each with the pair's
+stamp and ``world_frame``: ``people/poses`` (geometry_msgs/PoseArray), ``people/detections``
+(PointCloud2, one point per person: ``st_stereo.nodes.people_messages.DETECTION_FIELDS``),
+``people/markers`` (visualization_msgs/MarkerArray) and, when vision_msgs is importable,
+``people/detections_3d`` (vision_msgs/Detection3DArray). A pair without people publishes
+empty messages. Until a camera_info has arrived no pair can be placed in the room: each one is
+counted (``waiting_for_camera_info``) and nothing is published for it.
+"""
+
+import importlib
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from st_stereo.core.people import PeopleConfig, PeopleEstimator, project_to_pixels, \
+    world_from_rectified
+from st_stereo.core.rig_pose import RigPose, RigPoseError
+from st_stereo.nodes import conversions, diagnostics, people_messages
+from st_stereo.nodes.node_parameters import people_config_parameters, PEOPLE_PARAMETERS
+from st_stereo.nodes.parameters import declare_node_parameters
+from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
+from st_stereo.nodes.sync import subscribe_exact
+from std_msgs.msg import Header
+from visualization_msgs.msg import MarkerArray
+
+POSE_PARAMETERS = ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')
+
+
+def optional_vision_msgs():
+    """Return the vision_msgs.msg module, or None when it is not installed."""
+    try:
+        return importlib.import_module('vision_msgs.msg')
+    except ImportError:
+        return None
+
+
+class PeopleNode(Node):
+    """Thin wrapper: points2 (+ left image) -> PeopleEstimator -> people topics."""
+
+    def __init__(self, **kwargs):
+        super().__init__('people', **with_default_namespace(kwargs))
+        declare_node_parameters(self, PEOPLE_PARAMETERS + people_config_parameters())
+        values = {name: self.get_parameter(name).value for name in POSE_PARAMETERS}
+        try:
+            self.pose = RigPose(world_frame=self.get_parameter('world_frame').value, **values)
+        except RigPoseError as error:
+            raise ValueError(f'people: {error}') from None
+        self.config = PeopleConfig(**{p.name: self.get_parameter(p.name).value
+                                      for p in people_config_parameters()})
+        self.poses_pub = self.create_publisher(PoseArray, 'people/poses', RELIABLE)
+        self.detections_pub = self.create_publisher(PointCloud2, 'people/detections', RELIABLE)
+        self.markers_pub = self.create_publisher(MarkerArray, 'people/markers', RELIABLE)
+        self.vision_msgs = optional_vision_msgs()
+        self.detection3d_pub = None if self.vision_msgs is None else self.create_publisher(
+            self.vision_msgs.Detection3DArray, 'people/detections_3d', RELIABLE)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(CameraInfo, 'left/camera_info', self._on_camera_info,
+                                 qos_profile_sensor_data)
+        self.sync = None
+        if self.get_parameter('use_image').value:
+            self.sync = subscribe_exact(self, [(PointCloud2, 'points2'),
+                                               (Image, 'left/image_rect')],
+                                        self._on_pair, qos_profile_sensor_data)
+        else:
+            self.create_subscription(PointCloud2, 'points2', self._on_pair,
+                                     qos_profile_sensor_data)
+        self.camera_info = None
+        self.estimator = None
+        self._rectification = None
+        self.counts = {'pairs': 0, 'published': 0, 'waiting_for_camera_info': 0,
+                       'dropped_bad_input': 0}
+        self.last_error = ''
+        self.frequency = diagnostics.FrequencyTracker(
+            self.get_parameter('target_frequency').value)
+        self.add_on_set_parameters_callback(self._on_parameters)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_parameters(self, parameters):
+        for parameter in parameters:
+            if parameter.name == 'target_frequency':
+                if not (isinstance(parameter.value, float) and parameter.value > 0):
+                    return SetParametersResult(successful=False,
+                                               reason='target_frequency: expected > 0')
+                self.frequency.target_hz = parameter.value
+        return SetParametersResult(successful=True)
+
+    def _on_camera_info(self, msg):
+        rectification = tuple(msg.r)
+        if rectification != self._rectification:
+            r1 = np.array(rectification, dtype=np.float64).reshape(3, 3)
+            if not np.any(r1):              # R not filled in: an unrectified camera
+                r1 = np.eye(3)
+            transform = world_from_rectified(self.pose, r1)
+            if self.estimator is None:
+                self.estimator = PeopleEstimator(transform, self.config)
+            else:                           # a new calibration: same tracks, new geometry
+                self.estimator.transform = transform
+            self._rectification = rectification
+        self.camera_info = msg
+
+    def _on_pair(self, points_msg, image_msg=None):
+        self.counts['pairs'] += 1
+        if self.camera_info is None:
+            self.counts['waiting_for_camera_info'] += 1
+            self.get_logger().warning('no left/camera_info yet: people wait for it',
+                                      throttle_duration_sec=5.0)
+            return
+        try:
+            fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
+                                                    ('disparity', 'confidence'))
+            image = None if image_msg is None else conversions.msg_to_image(image_msg)
+        except ValueError as error:
+            self.counts['dropped_bad_input'] += 1
+            self.last_error = str(error)
+            self.get_logger().warning(f'pair dropped: {error}', throttle_duration_sec=5.0)
+            return
+        self.last_error = ''
+        points = np.column_stack([fields['x'], fields['y'], fields['z']])
+        finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
+        points = points[finite]
+        p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
+        x_left, y = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
+        shape = None if image is None else image.shape
+        if shape is None and self.camera_info.width and self.camera_info.height:
+            shape = (self.camera_info.height, self.camera_info.width)
+        stamp_s = points_msg.header.stamp.sec + 1e-9 * points_msg.header.stamp.nanosec
+        frame = self.estimator.process(
+            stamp_s, points, x_left, y,
+            None if fields['disparity'] is None else fields['disparity'][finite],
+            None if fields['confidence'] is None else fields['confidence'][finite],
+            image, shape)
+        header = Header(stamp=points_msg.header.stamp, frame_id=self.pose.world_frame)
+        self.poses_pub.publish(people_messages.poses_msg(header, frame.tracks))
+        self.detections_pub.publish(people_messages.detections_cloud(header, frame.tracks))
+        self.markers_pub.publish(people_messages.markers_msg(header, frame.tracks, frame.ended))
+        if self.detection3d_pub is not None:
+            self.detection3d_pub.publish(people_messages.detection3d_msg(
+                self.vision_msgs, header, frame.tracks))
+        self.counts['published'] += 1
+        self.frequency.tick(self.get_clock().now().nanoseconds * 1e-9)
+
+    def _publish_diagnostics(self):
+        now = self.get_clock().now().nanoseconds * 1e-9
+        level, message, values = self.frequency.values(now)
+        values.update(self.counts)
+        if self.estimator is not None:
+            values.update({f'people {k}': v for k, v in self.estimator.counts.items()})
+            values.update({f'tracks {k}': v for k, v in self.estimator.tracker.counts.items()})
+        if self.sync is not None:
+            values['pairs dropped by sync (points2, left image)'] = \
+                ', '.join(map(str, self.sync.dropped))
+        if self.last_error:
+            level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
+        elif self.camera_info is None:
+            level, message = diagnostics.WARN, 'waiting for left/camera_info'
+        status = diagnostics.status(f'{self.get_name()}: people', 'st_stereo', level, message,
+                                    values)
+        diagnostics.publish(self, self.diagnostics_pub, [status])
+
+
+def main(args=None):
+    """Run the people node."""
+    return spin_node(PeopleNode, args)

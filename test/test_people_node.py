@@ -1,0 +1,165 @@
+"""
+The people node with real rclpy: topics, stamps, frames, and bad input.
+
+Inputs are handed to the node's callbacks directly (the synchronizer's and camera_info's), the
+outputs received over Fast DDS on loopback by a subscriber. The person is made in the
+simulated room and put into the rectified left frame by the simulator's camera model.
+"""
+
+import os
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+import numpy as np
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from ros_helpers import ros_nodes
+from sensor_msgs.msg import PointCloud2
+from st_stereo.core.people import project_to_pixels
+from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg, \
+    point_cloud, point_cloud_fields
+from st_stereo.nodes.people_messages import DETECTION_FIELDS
+from st_stereo.nodes.people_node import PeopleNode
+from st_stereo.sim.sequences import standard_sequences
+from std_msgs.msg import Header
+from visualization_msgs.msg import MarkerArray
+
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+RIG = standard_sequences()['walk_across'].rig
+POSE = RIG.rig_pose()
+LEFT = RIG.calibrations()[0]
+
+
+@pytest.fixture
+def ros():
+    with ros_nodes() as nodes:
+        yield nodes
+
+
+class PeopleCollector(Node):
+    def __init__(self, context):
+        super().__init__('people_collector', context=context, namespace='stereo')
+        self.poses, self.clouds, self.markers, self.statuses = [], [], [], {}
+        self.create_subscription(PoseArray, 'people/poses', self.poses.append, 10)
+        self.create_subscription(PointCloud2, 'people/detections', self.clouds.append, 10)
+        self.create_subscription(MarkerArray, 'people/markers', self.markers.append, 10)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
+
+
+def spin_until(executor, predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        executor.spin_once(timeout_sec=0.05)
+
+
+def people_node(context):
+    overrides = [Parameter('world_frame', value='room')] + [
+        Parameter(field, value=float(getattr(POSE, field)))
+        for field in ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')]
+    return PeopleNode(context=context, parameter_overrides=overrides)
+
+
+def person_in_rectified_frame(x, y, seed):
+    """Points on a standing person's front at (x, y) in the room, in the rectified frame."""
+    rng = np.random.default_rng(seed)
+    heights = rng.uniform(0.7, 1.75, 150)
+    angle = rng.uniform(-1.0, 1.0, 150) - np.pi / 2
+    world = np.column_stack([x + 0.12 * np.cos(angle), y + 0.12 * np.sin(angle), heights])
+    return RIG.to_rectified_left(world)
+
+
+def pair_messages(sec, points):
+    """Return the matcher's points2 and the rectifier's left image (warm at the points)."""
+    header = Header(frame_id='stereo_left_optical_frame')
+    header.stamp.sec = sec
+    p = LEFT.projection
+    image = np.full((60, 80), 8000.0)
+    if len(points):
+        u, v = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
+        inside = (u >= 0) & (u < 80) & (v >= 0) & (v < 60)
+        image[np.rint(v[inside]).astype(int).clip(0, 59),
+              np.rint(u[inside]).astype(int).clip(0, 79)] += 400
+    disparity = RIG.fx_baseline / np.maximum(points[:, 2], 1e-3)
+    cloud = point_cloud(header, points, disparity, np.ones(len(points)), np.zeros(len(points)),
+                        np.ones(len(points)))
+    return cloud, image_to_msg(image.astype(np.uint16), header)
+
+
+def feed(node, cloud, image):
+    node.sync.add(0, cloud)
+    node.sync.add(1, image)
+
+
+def test_people_wait_for_camera_info_then_come_with_the_pair_stamp_in_the_world_frame(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    spin_until(executor, lambda: node.count_subscribers('people/poses') >= 1 and
+               collector.count_publishers('people/poses') >= 1, 10.0)
+    feed(node, *pair_messages(100, person_in_rectified_frame(0.2, 2.0, 0)))
+    spin_until(executor, lambda: False, 0.3)
+    assert node.counts['waiting_for_camera_info'] == 1 and not collector.poses
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    for sec in range(101, 106):
+        feed(node, *pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec)))
+    spin_until(executor, lambda: len(collector.clouds) >= 5 and len(collector.poses) >= 5,
+               10.0)
+    assert [p.header.stamp.sec for p in collector.poses] == list(range(101, 106))
+    assert {p.header.frame_id for p in collector.poses} == {'room'}
+    last = point_cloud_fields(collector.clouds[-1], DETECTION_FIELDS)
+    assert len(last['x']) == 1
+    assert (last['x'][0], last['y'][0]) == pytest.approx((0.2, 2.0), abs=0.15)
+    assert last['height'][0] == pytest.approx(1.75, abs=0.1)
+    assert collector.markers[-1].markers[0].ns == 'people'
+    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
+    assert collector.statuses['people: people']['waiting_for_camera_info'] == '1'
+
+
+def test_an_empty_scene_publishes_empty_messages(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    spin_until(executor, lambda: collector.count_publishers('people/poses') >= 1, 10.0)
+    feed(node, *pair_messages(7, np.zeros((0, 3))))
+    spin_until(executor, lambda: collector.poses and collector.clouds and collector.markers,
+               10.0)
+    assert collector.poses[0].poses == [] and collector.clouds[0].width == 0
+    assert collector.poses[0].header.stamp.sec == 7
+
+
+def test_a_cloud_without_z_is_dropped_counted_and_reported(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    cloud, image = pair_messages(3, person_in_rectified_frame(0.0, 3.0, 1))
+    cloud.fields = [f for f in cloud.fields if f.name != 'z']
+    feed(node, cloud, image)
+    assert node.counts['dropped_bad_input'] == 1
+    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
+    assert collector.statuses['people: people']['dropped_bad_input'] == '1'
+    assert "no field(s) ['z']" in node.last_error
+
+
+def test_a_person_at_the_image_border_is_published_without_a_crash(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    spin_until(executor, lambda: collector.count_publishers('people/detections') >= 1, 10.0)
+    # This person's right half is outside the image (columns 74-91 of 80): the pixels off the
+    # image are clipped, never indexed out of range, and the body is cut by the side edge.
+    for sec in range(1, 5):
+        feed(node, *pair_messages(sec, person_in_rectified_frame(1.0, 2.0, sec)))
+    spin_until(executor, lambda: len(collector.clouds) >= 4, 10.0)
+    assert len(collector.clouds) == 4
+    last = point_cloud_fields(collector.clouds[-1], DETECTION_FIELDS)
+    assert last['x'].size == 1 and last['head_visible'][0] == 0.0
+    assert last['x'][0] == pytest.approx(1.0, abs=0.2)
