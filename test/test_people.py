@@ -270,3 +270,62 @@ def test_the_people_scores_count_hits_misses_false_people_and_id_switches():
     assert row['recall'] == pytest.approx(5 / 6) and row['precision'] == pytest.approx(5 / 6)
     assert row['id_switches'] == 1
     assert row['mota'] == pytest.approx(1 - (1 + 1 + 1) / 6)
+
+
+def test_a_cool_change_over_a_third_of_the_image_is_learned_and_nan_pixels_are_ignored():
+    background = WarmBackground(PeopleConfig(background_time_s=1.0))
+    image = np.full((60, 80), 8000.0)
+    background.update(image, 0.0)
+    changed = image.copy()
+    changed[40:, :] += 60                         # a third of the image, below the margin
+    changed[0, :3] = np.nan                       # a float image with holes
+    for t in np.arange(0.1, 6.0, 0.1):
+        warm = background.update(changed, t)
+    assert not warm.any()
+    assert np.isfinite(background.background).all()
+    assert np.allclose(background.background[40:], 8060.0, atol=5.0)
+
+
+def test_where_a_person_is_published_the_background_does_not_absorb_them():
+    config = PeopleConfig(absorb_time_s=2.0)
+    person = np.zeros((60, 80), dtype=bool)
+    person[20:45, 30:38] = True
+    image = np.full((60, 80), 8000.0) + 300 * person
+    free, guarded = WarmBackground(config), WarmBackground(config)
+    for t in np.arange(0.0, 20.0, 0.115):
+        warm_free = free.update(image, t)
+        warm_guarded = guarded.update(image, t, protect=person)
+    assert warm_guarded[person].all()
+    assert not warm_free[person].any()            # absorbed after many absorb_time_s
+
+
+def test_noise_that_never_becomes_a_track_uses_no_id():
+    tracker = PeopleTracker()
+    for index, t in enumerate(np.arange(0.0, 3.0, 0.115)):
+        # One false detection per pair, each far from every other (never two hits).
+        noise = [Detection(10.0 + 3.0 * index, 6.0, 1.5, 10, 0.5, np.eye(2) * 1e-3)]
+        assert tracker.update(noise, t) == []
+    person = walk((0.0, 3.0), (0.5, 0.0), np.arange(3.0, 4.0, 0.115))
+    for t, detection in zip(np.arange(3.0, 4.0, 0.115), person):
+        tracks = tracker.update([detection], t)
+    assert [track.track_id for track in tracks] == [1]
+
+
+def test_points_kilometres_away_are_not_used():
+    person = person_points(0.0, 3.0, seed=6)
+    points = np.vstack([person, [[0.0, 4000.0, 1.5]]])
+    detections = detect_people(points, CAMERA)
+    assert len(detections) == 1
+    assert detections[0].points == np.count_nonzero(person[:, 2] >= 0.6)
+    assert len(person) not in detections[0].members
+
+
+def test_point_cloud_fields_name_what_they_cannot_read():
+    cloud = detections_cloud(Header(), _tracks())
+    cloud.row_step = 3
+    with pytest.raises(ValueError, match='row_step: expected >= width x point_step'):
+        point_cloud_fields(cloud, ('x',))
+    cloud = detections_cloud(Header(), _tracks())
+    cloud.fields[0].count = 3
+    with pytest.raises(ValueError, match='field x: count 3, expected 1'):
+        point_cloud_fields(cloud, ('x',))

@@ -1,8 +1,9 @@
 """
 The people node with real rclpy: topics, stamps, frames, and bad input.
 
-Inputs are handed to the node's callbacks directly (the synchronizer's and camera_info's), the
-outputs received over Fast DDS on loopback by a subscriber. The person is made in the
+Most inputs are handed to the node's callbacks directly, the outputs received over Fast DDS on
+loopback by a subscriber; one test publishes the inputs over DDS too, with the QoS the
+matcher and rectifier publish with. The person is made in the
 simulated room and put into the rectified left frame by the simulator's camera model.
 """
 
@@ -92,8 +93,10 @@ def pair_messages(sec, points):
 
 
 def feed(node, cloud, image):
-    node.sync.add(0, cloud)
-    node.sync.add(1, image)
+    """Hand a pair over as the executor does: the image first (the rectifier's), then points2."""
+    if image is not None:
+        node._on_image(image)
+    node._on_points(cloud)
 
 
 def test_people_wait_for_camera_info_then_come_with_the_pair_stamp_in_the_world_frame(ros):
@@ -163,3 +166,86 @@ def test_a_person_at_the_image_border_is_published_without_a_crash(ros):
     last = point_cloud_fields(collector.clouds[-1], DETECTION_FIELDS)
     assert last['x'].size == 1 and last['head_visible'][0] == 0.0
     assert last['x'][0] == pytest.approx(1.0, abs=0.2)
+
+
+class RigInputs(Node):
+    """Publishes points2, left/image_rect and left/camera_info as the suite does (RELIABLE 5)."""
+
+    def __init__(self, context):
+        from sensor_msgs.msg import CameraInfo, Image
+        from st_stereo.nodes.runtime import RELIABLE
+        super().__init__('rig_inputs', context=context, namespace='stereo')
+        self.points = self.create_publisher(PointCloud2, 'points2', RELIABLE)
+        self.image = self.create_publisher(Image, 'left/image_rect', RELIABLE)
+        self.info = self.create_publisher(CameraInfo, 'left/camera_info', RELIABLE)
+
+
+def test_people_from_inputs_published_over_dds(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    inputs = add(RigInputs(context))
+    spin_until(executor, lambda: inputs.points.get_subscription_count() >= 1 and
+               inputs.image.get_subscription_count() >= 1 and
+               collector.count_publishers('people/detections') >= 1, 10.0)
+    for sec in range(1, 7):
+        cloud, image = pair_messages(sec, person_in_rectified_frame(-0.3, 2.1, sec))
+        info = camera_info_from_calibration(LEFT, image.header)
+        inputs.info.publish(info)
+        inputs.image.publish(image)
+        spin_until(executor, lambda: False, 0.05)
+        inputs.points.publish(cloud)
+        spin_until(executor, lambda s=sec: any(c.header.stamp.sec == s
+                                               for c in collector.clouds), 5.0)
+    assert [c.header.stamp.sec for c in collector.clouds] == list(range(1, 7))
+    last = point_cloud_fields(collector.clouds[-1], DETECTION_FIELDS)
+    assert (last['x'][0], last['y'][0]) == pytest.approx((-0.3, 2.1), abs=0.15)
+    assert node.counts['pairs_without_image'] == 0
+
+
+def test_points_without_their_image_still_publish_and_are_counted(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    spin_until(executor, lambda: collector.count_publishers('people/poses') >= 1, 10.0)
+    for sec in range(1, 4):
+        cloud, _ = pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec))
+        feed(node, cloud, None)
+    spin_until(executor, lambda: len(collector.poses) >= 3, 10.0)
+    assert node.counts['pairs_without_image'] == 3
+    assert [len(p.poses) for p in collector.poses] == [0, 0, 0]
+    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
+    assert collector.statuses['people: people']['pairs_without_image'] == '3'
+
+
+def test_without_use_image_points_alone_find_the_person(ros):
+    context, executor, add = ros
+    overrides = [Parameter('use_image', value=False)] + [
+        Parameter(field, value=float(getattr(POSE, field)))
+        for field in ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')]
+    collector = add(PeopleCollector(context))
+    node = add(PeopleNode(context=context, parameter_overrides=overrides))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    spin_until(executor, lambda: collector.count_publishers('people/detections') >= 1, 10.0)
+    for sec in range(1, 4):
+        node._on_points(pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec))[0])
+    spin_until(executor, lambda: len(collector.clouds) >= 3, 10.0)
+    assert point_cloud_fields(collector.clouds[-1], ('x',))['x'].size == 1
+    assert node.estimator.counts['no_image'] == 3
+
+
+def test_a_camera_info_without_a_projection_is_rejected_and_named(ros):
+    context, executor, add = ros
+    node = add(people_node(context))
+    info = camera_info_from_calibration(LEFT, Header())
+    info.p = [0.0] * 12
+    node._on_camera_info(info)
+    assert node.camera_info is None and node.counts['camera_info_rejected'] == 1
+    assert 'P: expected fx = P[0] > 0' in node.last_error
+    info = camera_info_from_calibration(LEFT, Header())
+    info.r = [2.0, 0, 0, 0, 1, 0, 0, 0, 1]
+    node._on_camera_info(info)
+    assert node.camera_info is None and 'R: not a rotation matrix' in node.last_error
+    feed(node, *pair_messages(1, person_in_rectified_frame(0.2, 2.0, 1)))
+    assert node.counts['waiting_for_camera_info'] == 1

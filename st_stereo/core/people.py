@@ -88,12 +88,16 @@ class PeopleConfig:
         'published only after moving this far, m')
     reacquire_cut_s: float = _field(
         0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
+    max_range_m: float = _field(
+        15.0, 'points farther than this from the camera, horizontally, are not used (a '
+        'near-zero disparity puts a point kilometres away), m')
     acceleration_sigma: float = _field(
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
     def __post_init__(self):
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
-                    'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma')
+                    'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma',
+                    'max_range_m')
         if not 0.0 <= self.publish_coast_s <= self.max_coast_s:
             raise ValueError(f'people.publish_coast_s: expected 0 .. max_coast_s '
                              f'({self.max_coast_s!r}), got {self.publish_coast_s!r}')
@@ -168,6 +172,7 @@ class Detection:
     head_visible: bool = True
     cut_top: bool = False
     depth_spread_m: float = 0.0
+    members: np.ndarray = None    # indices of its points in the points given to detect_people
 
 
 class WarmBackground:
@@ -189,33 +194,57 @@ class WarmBackground:
         self.stamp_s = None
         self.frames = 0
 
-    def update(self, image, stamp_s):
-        """Return the warm mask of ``image`` (bool, the image's shape) and learn from it."""
+    def update(self, image, stamp_s, protect=None):
+        """
+        Return the warm mask of ``image`` (bool, the image's shape) and learn from it.
+
+        ``protect``: pixels (bool mask) where a published person stands; warm ones there are
+        not learned at all, so a person seated for longer than ``absorb_time_s`` stays
+        foreground. Pixels that are 0 (no data after rectification) or not finite are never
+        warm and never learned.
+        """
         image = np.asarray(image, dtype=np.float64)
-        valid = image > 0                      # rectified pixels without data are 0
+        valid = np.isfinite(image) & (image > 0)
         if self.background is None or self.background.shape != image.shape:
             level = float(np.median(image[valid])) if valid.any() else 0.0
             self.background = np.full(image.shape, level)
             self.stamp_s, self.frames = stamp_s, 0
         offset = float(np.median((image - self.background)[valid])) if valid.any() else 0.0
-        difference = image - self.background - offset
+        difference = np.where(valid, image - self.background - offset, 0.0)
         warm = valid & (difference > self.config.warm_margin_counts)
         dt = max(0.0, stamp_s - self.stamp_s)
         self.frames += 1
         cool_rate = max(1.0 / self.frames, 1.0 - math.exp(-dt / self.config.background_time_s))
         warm_rate = 1.0 - math.exp(-dt / self.config.absorb_time_s)
         rate = np.where(warm, warm_rate, cool_rate) * valid
+        if protect is not None and np.shape(protect) == image.shape:
+            rate[warm & protect] = 0.0
         self.background = self.background + offset + rate * difference
         self.stamp_s = stamp_s
         return warm
 
 
+def pixel_indices(shape, x_left, y):
+    """Return rounded (rows, cols) of pixels and whether each is inside ``shape``."""
+    x = np.asarray(x_left, dtype=np.float64).reshape(-1)
+    v = np.asarray(y, dtype=np.float64).reshape(-1)
+    inside = np.isfinite(x) & np.isfinite(v)
+    cols = np.rint(np.where(inside, x, -1.0)).astype(int)
+    rows = np.rint(np.where(inside, v, -1.0)).astype(int)
+    inside &= (cols >= 0) & (cols < shape[1]) & (rows >= 0) & (rows < shape[0])
+    return np.where(inside, rows, 0), np.where(inside, cols, 0), inside
+
+
 def warm_points(mask, x_left, y):
-    """Whether each point's left pixel (rounded ``x_left``, ``y``) is in the warm ``mask``."""
-    cols = np.clip(np.rint(np.asarray(x_left)).astype(int), 0, mask.shape[1] - 1)
-    rows = np.clip(np.rint(np.asarray(y)).astype(int), 0, mask.shape[0] - 1)
+    """
+    Whether each point's left pixel (rounded ``x_left``, ``y``) is in the warm ``mask``.
+
+    The mask is dilated by one pixel (a match on a person's outline); a pixel outside the
+    image or not finite is not warm.
+    """
+    rows, cols, inside = pixel_indices(mask.shape, x_left, y)
     dilated = ndimage.binary_dilation(mask, iterations=1)
-    return dilated[rows, cols]
+    return dilated[rows, cols] & inside
 
 
 def project_to_pixels(points, fx, fy, cx, cy):
@@ -285,10 +314,13 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
     """
     config = config or PeopleConfig()
     points = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    centre = np.asarray(camera_centre, dtype=np.float64)
     keep = (points[:, 2] >= config.min_point_height_m) & \
-        (points[:, 2] <= config.max_point_height_m) & np.isfinite(points).all(axis=1)
+        (points[:, 2] <= config.max_point_height_m) & np.isfinite(points).all(axis=1) & \
+        (np.hypot(points[:, 0] - centre[0], points[:, 1] - centre[1]) <= config.max_range_m)
     if confidence is not None:
-        keep &= np.asarray(confidence) >= config.min_confidence
+        # NaN: the matcher gave none (points2's confidence field) -- kept, weight 1.
+        keep &= ~(np.asarray(confidence, dtype=np.float64) < config.min_confidence)
     sigma_depth = None
     if disparity is not None and depth is not None:
         d, z = np.asarray(disparity, dtype=np.float64), np.asarray(depth, dtype=np.float64)
@@ -296,16 +328,20 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         sigma_depth = np.where(d > 0, z * config.disparity_sigma_px / np.maximum(d, 1e-9), 0)
         sigma_depth = sigma_depth[keep]
     weights = np.ones(int(keep.sum())) if confidence is None else \
-        np.asarray(confidence, dtype=np.float64)[keep]
+        np.nan_to_num(np.asarray(confidence, dtype=np.float64)[keep], nan=1.0)
+    indices = np.flatnonzero(keep)
     at_top = at_side = np.zeros(int(keep.sum()), dtype=bool)
     if pixels is not None and image_shape is not None:
         px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)[keep]
         at_top = px[:, 1] <= config.edge_px
         # The left edge of what both cameras see is the right image's: x - d.
         left_x = px[:, 0] - (0.0 if disparity is None else np.asarray(disparity)[keep])
-        at_side = (left_x <= config.edge_px) | (px[:, 0] >= image_shape[1] - 1 - config.edge_px)
+        # The bottom edge too: a body cut there (a person under a rig looking straight down)
+        # is not whole, though not a screen's shape either.
+        at_side = (left_x <= config.edge_px) | \
+            (px[:, 0] >= image_shape[1] - 1 - config.edge_px) | \
+            (px[:, 1] >= image_shape[0] - 1 - config.edge_px)
     points = points[keep]
-    centre = np.asarray(camera_centre, dtype=np.float64)
     detections, taken = [], np.zeros(len(points), dtype=bool)
     for peak in occupancy_peaks(points[:, :2], config):
         near = (~taken) & (np.hypot(*(points[:, :2] - peak).T) <= config.person_radius_m)
@@ -338,7 +374,8 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         strength = float(np.mean(weights[near])) * min(1.0, near.sum() / (3 * config.min_points))
         spread_z = float(np.std(depth[keep][near])) if depth is not None else float('nan')
         detections.append(Detection(float(xy[0]), float(xy[1]), head, int(near.sum()),
-                                    strength, covariance, head_visible, cut_top, spread_z))
+                                    strength, covariance, head_visible, cut_top, spread_z,
+                                    indices[near]))
     return detections
 
 
@@ -360,6 +397,7 @@ class Track:
     confirmed: bool = False       # published (min_hits, and a head seen or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
     depth_spread_m: float = float('nan')   # the last detection's depth spread
+    detection: Detection = None   # the last detection it took
     start: np.ndarray = None      # first floor position
 
     def __post_init__(self):
@@ -419,6 +457,7 @@ class PeopleTracker:
             track.head_visible = detection.head_visible
         track.seen_head = track.seen_head or self._shows_head(detection)
         track.cut_top = detection.cut_top
+        track.detection = detection
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -431,9 +470,14 @@ class PeopleTracker:
             detection.head_height >= self.config.min_head_height_m
 
     def gate(self, track):
-        """Farthest a detection may be from the track: ``gate_m`` plus 3 sigma of its position."""
-        return self.config.gate_m + 3.0 * math.sqrt(max(0.0, float(np.linalg.eigvalsh(
-            track.position_covariance)[-1])))
+        """
+        Return how far a detection may be from the track's prediction.
+
+        ``gate_m`` plus 3 sigma of the predicted position, at most twice ``gate_m`` (a track
+        coasting for long must not take a newcomer metres away).
+        """
+        return min(2.0 * self.config.gate_m, self.config.gate_m + 3.0 * math.sqrt(max(
+            0.0, float(np.linalg.eigvalsh(track.position_covariance)[-1]))))
 
     def update(self, detections, stamp_s):
         """
@@ -485,13 +529,13 @@ class PeopleTracker:
             covariance = np.zeros((4, 4))
             covariance[:2, :2] = detection.covariance + np.eye(2) * 1e-4
             covariance[2:, 2:] = np.eye(2) * 1.0     # walking speed unknown: 1 m/s sigma
-            self.tracks.append(Track(self.next_id, np.array([detection.x, detection.y, 0, 0]),
+            self.tracks.append(Track(0, np.array([detection.x, detection.y, 0, 0]),
                                      covariance, detection.head_height, detection.confidence,
                                      detection.points, 1, stamp_s, detection.head_visible,
                                      seen_head=self._shows_head(detection),
                                      cut_top=detection.cut_top,
-                                     depth_spread_m=detection.depth_spread_m))
-            self.next_id += 1
+                                     depth_spread_m=detection.depth_spread_m,
+                                     detection=detection))
         alive = []
         for track in self.tracks:
             if stamp_s - track.last_seen_s > self.config.max_coast_s:
@@ -507,7 +551,10 @@ class PeopleTracker:
             if not track.confirmed and track.hits >= self.config.min_hits and \
                     (track.seen_head or track.travel_m >= self.config.min_travel_m):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
+                # Ids are given here, so noise that never becomes a track uses none.
                 track.confirmed = True
+                track.track_id = self.next_id
+                self.next_id += 1
                 self.counts['started'] += 1
         confirmed = [t for t in self.tracks if t.confirmed]
         return [t for t in confirmed
@@ -522,7 +569,6 @@ class PeopleFrame:
     detections: list
     ended: list
     points_used: int
-    points_warm: int
 
 
 class PeopleEstimator:
@@ -533,7 +579,9 @@ class PeopleEstimator:
 
     ``transform``: ``world_from_rectified(pose, R1)``. Each pair: the left rectified image
     (optional; without it no warm filter is applied, counted as ``no_image``) and the points
-    in the rectified left frame with their left pixels, disparities and confidences.
+    in the rectified left frame with their left pixels, disparities and confidences. Where a
+    published person's points are, the background does not learn the warm pixels (a person
+    seated for long stays foreground).
     """
 
     def __init__(self, transform, config=None):
@@ -541,37 +589,56 @@ class PeopleEstimator:
         self.transform = transform
         self.background = WarmBackground(self.config)
         self.tracker = PeopleTracker(self.config)
+        self.protect = None
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
-                       'points_not_warm': 0, 'detections': 0}
+                       'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None):
         """Return the PeopleFrame of one pair (see the class docstring)."""
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        x_left = np.asarray(x_left, dtype=np.float64).reshape(-1)
+        y = np.asarray(y, dtype=np.float64).reshape(-1)
         self.counts['points_in'] += len(points)
-        keep = np.ones(len(points), dtype=bool)
-        if image_shape is None and left_image is not None:
-            image_shape = np.shape(left_image)
-        if left_image is not None:
-            warm = self.background.update(left_image, stamp_s)
-            if self.config.require_warm and len(points):
-                keep = warm_points(warm, x_left, y) & np.isfinite(np.asarray(x_left)) & \
-                    np.isfinite(np.asarray(y))
-        else:
-            self.counts['no_image'] += 1
         if not len(points):
             self.counts['no_points'] += 1
-        self.counts['points_not_warm'] += int((~keep).sum())
-        world = rectified_to_world(points[keep], self.transform)
+        if image_shape is None and left_image is not None:
+            image_shape = np.shape(left_image)
+        keep = np.ones(len(points), dtype=bool)
+        if left_image is not None:
+            warm = self.background.update(left_image, stamp_s, self.protect)
+            if self.config.require_warm:
+                keep = warm_points(warm, x_left, y)
+                self.counts['points_not_warm'] += int((~keep).sum())
+        else:
+            self.counts['no_image'] += 1
+        world = rectified_to_world(points, self.transform)
+        centre = camera_centre_in_world(self.transform)
+        in_range = np.hypot(world[:, 0] - centre[0], world[:, 1] - centre[1]) <= \
+            self.config.max_range_m
+        self.counts['points_out_of_range'] += int((keep & ~in_range).sum())
+        keep &= in_range
+        used = np.flatnonzero(keep)
         detections = detect_people(
-            world, camera_centre_in_world(self.transform),
-            None if disparity is None else np.asarray(disparity)[keep], points[keep, 2],
-            None if confidence is None else np.asarray(confidence)[keep], self.config,
-            np.column_stack([np.asarray(x_left, dtype=np.float64).reshape(-1),
-                             np.asarray(y, dtype=np.float64).reshape(-1)])[keep],
-            image_shape)
+            world[keep], centre, None if disparity is None else np.asarray(disparity)[keep],
+            points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
+            self.config, np.column_stack([x_left, y])[keep], image_shape)
         self.counts['detections'] += len(detections)
         tracks = self.tracker.update(detections, stamp_s)
-        return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()),
-                           int(keep.sum()) if left_image is not None else 0)
+        self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
+        return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
+
+    @staticmethod
+    def _people_pixels(tracks, used, x_left, y, image_shape):
+        """Pixels (dilated by 2) of the points of the published tracks' detections now."""
+        if image_shape is None:
+            return None
+        mask = np.zeros(image_shape, dtype=bool)
+        for track in tracks:
+            if track.updated and track.detection is not None and \
+                    track.detection.members is not None:
+                members = used[track.detection.members]
+                rows, cols, inside = pixel_indices(image_shape, x_left[members], y[members])
+                mask[rows[inside], cols[inside]] = True
+        return ndimage.binary_dilation(mask, iterations=2) if mask.any() else mask

@@ -165,6 +165,9 @@ def point_cloud_fields(msg, required, optional=()):
     count = msg.width * msg.height
     if msg.point_step <= 0 and count:
         raise ValueError(f'point cloud point_step: expected > 0, got {msg.point_step}')
+    if count and msg.row_step < msg.width * msg.point_step:
+        raise ValueError(f'point cloud row_step: expected >= width x point_step = '
+                         f'{msg.width * msg.point_step}, got {msg.row_step}')
     if len(msg.data) < count * msg.point_step or msg.row_step * msg.height > len(msg.data):
         raise ValueError(f'point cloud data: expected {msg.row_step * msg.height} bytes '
                          f'({msg.height} rows of {msg.row_step}), got {len(msg.data)}')
@@ -178,6 +181,9 @@ def point_cloud_fields(msg, required, optional=()):
         if field is None:
             out[name] = None
             continue
+        if field.count > 1:
+            raise ValueError(f'point cloud field {name}: count {field.count}, expected 1 '
+                             f'(one number per point)')
         if field.datatype not in POINT_FIELD_DTYPES:
             raise ValueError(f'point cloud field {name}: datatype {field.datatype} is not a '
                              f'number type')

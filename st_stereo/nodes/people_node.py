@@ -2,17 +2,23 @@
 ``people``: people on the floor, with ids, from the matcher's points (``st_stereo.core.people``).
 
 Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence; any
-PointCloud2 with x, y, z works), ``left/image_rect`` (the warm foreground; paired with the
-points by exact stamp, ``use_image``) and ``left/camera_info`` (its R turns the rectified frame
-into the raw optical one, its P gives each point's pixel). Publishes, each with the pair's
-stamp and ``world_frame``: ``people/poses`` (geometry_msgs/PoseArray), ``people/detections``
-(PointCloud2, one point per person: ``st_stereo.nodes.people_messages.DETECTION_FIELDS``),
-``people/markers`` (visualization_msgs/MarkerArray) and, when vision_msgs is importable,
-``people/detections_3d`` (vision_msgs/Detection3DArray). A pair without people publishes
-empty messages. Until a camera_info has arrived no pair can be placed in the room: each one is
-counted (``waiting_for_camera_info``) and nothing is published for it.
+PointCloud2 with x, y, z works), ``left/image_rect`` (the warm foreground, ``use_image``: the
+image of the points' stamp, which the rectifier publishes before the matcher has matched it;
+a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
+skipped, the tracks coast and the messages still go out) and ``left/camera_info`` (its R turns
+the rectified frame into the raw optical one, its P gives each point's pixel; a camera_info
+with a P or R that cannot be used is dropped, counted and named in the diagnostics).
+
+Publishes, each with the pair's stamp and ``world_frame``: ``people/poses``
+(geometry_msgs/PoseArray), ``people/detections`` (PointCloud2, one point per person:
+``st_stereo.nodes.people_messages.DETECTION_FIELDS``), ``people/markers``
+(visualization_msgs/MarkerArray) and, when vision_msgs is importable, ``people/detections_3d``
+(vision_msgs/Detection3DArray). A pair without people publishes empty messages. Until a
+camera_info has arrived no pair can be placed in the room: each one is counted
+(``waiting_for_camera_info``) and nothing is published for it.
 """
 
+import collections
 import importlib
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -24,16 +30,16 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.people import PeopleConfig, PeopleEstimator, project_to_pixels, \
     world_from_rectified
-from st_stereo.core.rig_pose import RigPose, RigPoseError
+from st_stereo.core.rig_pose import nearest_rotation, RigPose, RigPoseError
 from st_stereo.nodes import conversions, diagnostics, people_messages
 from st_stereo.nodes.node_parameters import people_config_parameters, PEOPLE_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
-from st_stereo.nodes.sync import subscribe_exact
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 POSE_PARAMETERS = ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')
+IMAGES_KEPT = 30        # left images waiting for their points (3.4 s at 8.7 Hz)
 
 
 def optional_vision_msgs():
@@ -66,19 +72,26 @@ class PeopleNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(CameraInfo, 'left/camera_info', self._on_camera_info,
                                  qos_profile_sensor_data)
-        self.sync = None
-        if self.get_parameter('use_image').value:
-            self.sync = subscribe_exact(self, [(PointCloud2, 'points2'),
-                                               (Image, 'left/image_rect')],
-                                        self._on_pair, qos_profile_sensor_data)
-        else:
-            self.create_subscription(PointCloud2, 'points2', self._on_pair,
+        self.use_image = self.get_parameter('use_image').value
+        self.images = collections.OrderedDict()     # stamp key -> left/image_rect
+        if self.use_image:
+            self.create_subscription(Image, 'left/image_rect', self._on_image,
                                      qos_profile_sensor_data)
+        self.create_subscription(PointCloud2, 'points2', self._on_points,
+                                 qos_profile_sensor_data)
         self.camera_info = None
         self.estimator = None
         self._rectification = None
         self.counts = {'pairs': 0, 'published': 0, 'waiting_for_camera_info': 0,
-                       'dropped_bad_input': 0}
+                       'dropped_bad_input': 0, 'pairs_without_image': 0,
+                       'images_without_points': 0, 'points_not_finite': 0,
+                       'camera_info_rejected': 0}
+        if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
+               for name in POSE_PARAMETERS):
+            self.get_logger().warning(
+                'the rig pose is at its defaults (2.7 m high, looking straight down, at the '
+                "room's origin): set x_m ... roll_deg (the launch files take them from "
+                'rig_pose_file) or people are placed wrongly')
         self.last_error = ''
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
@@ -95,18 +108,52 @@ class PeopleNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_camera_info(self, msg):
-        rectification = tuple(msg.r)
-        if rectification != self._rectification:
-            r1 = np.array(rectification, dtype=np.float64).reshape(3, 3)
-            if not np.any(r1):              # R not filled in: an unrectified camera
-                r1 = np.eye(3)
-            transform = world_from_rectified(self.pose, r1)
+        try:
+            transform = self._transform_of(msg)
+        except ValueError as error:
+            self.counts['camera_info_rejected'] += 1
+            self.last_error = f'left/camera_info: {error}'
+            self.get_logger().warning(self.last_error, throttle_duration_sec=5.0)
+            return
+        if transform is not None:
             if self.estimator is None:
                 self.estimator = PeopleEstimator(transform, self.config)
             else:                           # a new calibration: same tracks, new geometry
                 self.estimator.transform = transform
-            self._rectification = rectification
+            self._rectification = tuple(msg.r)
         self.camera_info = msg
+
+    def _transform_of(self, msg):
+        """Return the world transform of a camera_info (None: unchanged); ValueError if bad."""
+        p = np.array(msg.p, dtype=np.float64).reshape(3, 4)
+        if not (np.isfinite(p).all() and p[0, 0] > 0 and p[1, 1] > 0):
+            raise ValueError(f'P: expected fx = P[0] > 0 and fy = P[5] > 0, got {list(msg.p)}')
+        if tuple(msg.r) == self._rectification:
+            return None
+        r1 = np.array(msg.r, dtype=np.float64).reshape(3, 3)
+        if not np.any(r1):                  # R not filled in: an unrectified camera
+            r1 = np.eye(3)
+        try:
+            r1 = nearest_rotation(r1)
+        except ValueError as error:
+            raise ValueError(f'R: {error}') from None
+        return world_from_rectified(self.pose, r1)
+
+    def _on_image(self, msg):
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        self.images[key] = msg
+        while len(self.images) > IMAGES_KEPT:
+            self.images.popitem(last=False)
+            self.counts['images_without_points'] += 1
+
+    def _on_points(self, points_msg):
+        key = (points_msg.header.stamp.sec, points_msg.header.stamp.nanosec)
+        image_msg = self.images.pop(key, None)
+        # Older images can no longer be paired: points come in stamp order.
+        for old in [k for k in self.images if k < key]:
+            del self.images[old]
+            self.counts['images_without_points'] += 1
+        self._on_pair(points_msg, image_msg)
 
     def _on_pair(self, points_msg, image_msg=None):
         self.counts['pairs'] += 1
@@ -119,6 +166,10 @@ class PeopleNode(Node):
             fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
                                                     ('disparity', 'confidence'))
             image = None if image_msg is None else conversions.msg_to_image(image_msg)
+            info = self.camera_info
+            if image is not None and info.width and image.shape != (info.height, info.width):
+                raise ValueError(f'left/image_rect: {image.shape[1]}x{image.shape[0]}, '
+                                 f'left/camera_info says {info.width}x{info.height}')
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
@@ -127,7 +178,14 @@ class PeopleNode(Node):
         self.last_error = ''
         points = np.column_stack([fields['x'], fields['y'], fields['z']])
         finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
+        self.counts['points_not_finite'] += int((~finite).sum())
         points = points[finite]
+        if self.use_image and image is None:
+            # No image of this stamp (yet): no warm foreground, so no detection; the tracks
+            # coast and the pair's (maybe empty) messages still go out.
+            self.counts['pairs_without_image'] += 1
+            points = points[:0]
+            finite = np.zeros_like(finite)
         p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         x_left, y = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
         shape = None if image is None else image.shape
@@ -156,13 +214,14 @@ class PeopleNode(Node):
         if self.estimator is not None:
             values.update({f'people {k}': v for k, v in self.estimator.counts.items()})
             values.update({f'tracks {k}': v for k, v in self.estimator.tracker.counts.items()})
-        if self.sync is not None:
-            values['pairs dropped by sync (points2, left image)'] = \
-                ', '.join(map(str, self.sync.dropped))
         if self.last_error:
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         elif self.camera_info is None:
             level, message = diagnostics.WARN, 'waiting for left/camera_info'
+        elif self.counts['pairs_without_image'] and not self.counts['published'] - \
+                self.counts['pairs_without_image']:
+            level, message = diagnostics.WARN, 'no left/image_rect with the stamps of ' \
+                'points2 (use_image): no people can be found'
         status = diagnostics.status(f'{self.get_name()}: people', 'st_stereo', level, message,
                                     values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
