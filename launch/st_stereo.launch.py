@@ -1,5 +1,5 @@
 """
-Launch the rig on a ROS 2 Jazzy install: driver, rectifier, matcher and the rig's static TF.
+Launch the rig on a ROS 2 Jazzy install: driver, rectifier, matcher, people and the static TF.
 
 ``ros2 launch st_stereo st_stereo.launch.py [source:=spi] [namespace:=stereo] ...``; every
 argument: ``ros2 launch st_stereo st_stereo.launch.py --show-args``. Empty arguments leave the

@@ -1,5 +1,5 @@
 """
-Replay a bag through the rectifier and matcher on the bag's clock: ``bag_play --clock``.
+Replay a bag through the rectifier, matcher and people on the bag's clock: ``bag_play --clock``.
 
 ``ros2 launch st_stereo st_stereo_replay.launch.py bag:=/path/to/bag [rate:=0.5]``: the
 recorded raw pair (and ``pair_info``) are republished with their recorded stamps, ``/clock``
