@@ -296,11 +296,13 @@ def command_eval_points(args):
 
 def command_eval_people(args):
     """People on the floor (detection, tracking) against the simulator's truth."""
+    from st_stereo.core.people import people_config_from_assignments
     from st_stereo.package_data import bundled_recording
     from st_stereo.tools import eval_people
     report, tallies = eval_people.evaluate(
         sequences=[name for name in args.sequences.split(',') if name],
         config=config_from_assignments(args.set),
+        people_config=people_config_from_assignments(args.people),
         recording=None if args.no_recording else bundled_recording(),
         max_pairs=args.max_frames,
         log=None if args.quiet else lambda line: print(line, file=sys.stderr))
@@ -435,6 +437,8 @@ def build_parser():
     e.add_argument('--max-frames', type=int, default=None, help='pairs per sequence (cap)')
     e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
     e.add_argument('--plot', help='floor plans of the true and estimated tracks (PNG)')
+    e.add_argument('--people', action='append', metavar='NAME=VALUE', default=[],
+                   help='set a people parameter (repeatable; the people node parameters, README)')
     e.add_argument('--strict', action='store_true',
                    help="exit 1 when one of the issue's criteria is not met")
     e.add_argument('--quiet', action='store_true')

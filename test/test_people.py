@@ -329,3 +329,24 @@ def test_point_cloud_fields_name_what_they_cannot_read():
     cloud.fields[0].count = 3
     with pytest.raises(ValueError, match='field x: count 3, expected 1'):
         point_cloud_fields(cloud, ('x',))
+
+
+def test_people_parameters_from_the_command_line_are_typed_and_checked():
+    from st_stereo.core.people import people_config_from_assignments
+    config = people_config_from_assignments(['min_hits=3', 'gate_m=1', 'require_warm=false'])
+    assert (config.min_hits, config.gate_m, config.require_warm) == (3, 1.0, False)
+    with pytest.raises(ValueError, match="--people: expected NAME=VALUE.*got 'radius=1'"):
+        people_config_from_assignments(['radius=1'])
+    with pytest.raises(ValueError, match="--people min_hits: expected a int, got '2.5'"):
+        people_config_from_assignments(['min_hits=2.5'])
+
+
+def test_a_track_is_not_confirmed_by_where_it_is_predicted_to_go():
+    tracker = PeopleTracker()
+    cut = [Detection(0.4 * i, 4.5, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                     cut_top=True) for i in range(3)]        # 0.8 m, then nothing
+    for t, detection in zip((0.0, 0.115, 0.23), cut):
+        assert tracker.update([detection], t) == []
+    for t in np.arange(0.345, 1.4, 0.115):                  # coasting on at 3.5 m/s
+        assert tracker.update([], t) == []
+    assert tracker.counts['started'] == 0 and tracker.next_id == 1

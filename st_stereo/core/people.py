@@ -30,6 +30,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from st_stereo.core.config import parse_bool
 from st_stereo.core.rig_pose import rig_to_optical_rotation, rotation_z
 
 
@@ -119,6 +120,24 @@ class PeopleConfig:
     def to_dict(self):
         """Return the fields as a dict."""
         return dataclasses.asdict(self)
+
+
+def people_config_from_assignments(assignments):
+    """Build a PeopleConfig from ``NAME=VALUE`` strings (``st-stereo eval people --people``)."""
+    kinds = {name: kind for name, kind, _, _ in people_fields()}
+    values = {}
+    for assignment in assignments or ():
+        name, sep, text = assignment.partition('=')
+        if not sep or name not in kinds:
+            raise ValueError(f'--people: expected NAME=VALUE with NAME one of '
+                             f'{", ".join(kinds)}; got {assignment!r}')
+        kind = kinds[name]
+        try:
+            values[name] = parse_bool(text) if kind is bool else kind(text)
+        except ValueError:
+            raise ValueError(f'--people {name}: expected a {kind.__name__}, got {text!r}') \
+                from None
+    return PeopleConfig(**values)
 
 
 def people_fields():
@@ -406,8 +425,11 @@ class Track:
 
     @property
     def travel_m(self):
-        """Return the distance from the first detection, metres."""
-        return float(np.hypot(*(self.state[:2] - self.start)))
+        """Return the distance of the last detection from the first, metres (not predicted)."""
+        if self.detection is None:
+            return 0.0
+        return float(math.hypot(self.detection.x - self.start[0],
+                                self.detection.y - self.start[1]))
 
     @property
     def position_covariance(self):
@@ -548,7 +570,8 @@ class PeopleTracker:
                 alive.append(track)
         self.tracks = alive
         for track in self.tracks:
-            if not track.confirmed and track.hits >= self.config.min_hits and \
+            if not track.confirmed and track.updated and \
+                    track.hits >= self.config.min_hits and \
                     (track.seen_head or track.travel_m >= self.config.min_travel_m):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
