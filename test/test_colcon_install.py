@@ -93,8 +93,8 @@ def installed(ws, environment, command, **kwargs):
 def test_colcon_installs_executables_share_files_and_the_ament_index(workspace):
     ws, _, python = workspace
     prefix = ws / 'install' / 'st_stereo'
-    for executable in ('lepton_driver', 'rectifier', 'matcher', 'stereo_pipeline', 'bag_play',
-                       'bag_record', 'st-stereo', 'st-stereo-suite'):
+    for executable in ('lepton_driver', 'rectifier', 'matcher', 'people', 'stereo_pipeline',
+                       'bag_play', 'bag_record', 'st-stereo', 'st-stereo-suite'):
         path = prefix / 'lib' / 'st_stereo' / executable
         assert os.access(path, os.X_OK), executable
         # The interpreter colcon built with (not the development environment's).
@@ -213,7 +213,7 @@ def test_the_installed_launch_files_load_from_the_share_directory(workspace):
     assert process.returncode == 0, err
     rig, replay = out.splitlines()
     assert rig.split()[1] == f'{share}/config/st_stereo.yaml'
-    assert rig.split()[2:] == ['lepton_driver', 'matcher', 'rectifier'] + \
+    assert rig.split()[2:] == ['lepton_driver', 'matcher', 'people', 'rectifier'] + \
         ['static_transform_publisher'] * 3
-    assert replay.split()[2:] == ['bag_play', 'matcher', 'rectifier'] + \
+    assert replay.split()[2:] == ['bag_play', 'matcher', 'people', 'rectifier'] + \
         ['static_transform_publisher'] * 3

@@ -318,8 +318,12 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         ``Z sigma_d / d``; without them the covariance is the points' spread alone.
     confidence : ndarray, shape (n,), optional
         Each point's match confidence (0..1); ``min_confidence`` drops the lower ones.
+    config : PeopleConfig, optional
+        The parameters (defaults when None).
     pixels : ndarray, shape (n, 2), optional
-        Each point's left pixel (x, y), with ``image_shape`` (rows, cols): a person whose
+        Each point's left pixel (x, y).
+    image_shape : tuple, optional
+        (rows, cols) of the left image. With ``pixels``: a person whose
         points come within ``edge_px`` of the image's top or side edge is cut by it (far
         away, the head above the image; walking in or out at a side), kept without the
         ``min_head_height_m`` test, with ``head_visible`` False and its position pushed back
