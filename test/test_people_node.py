@@ -59,11 +59,12 @@ def spin_until(executor, predicate, timeout_s):
         executor.spin_once(timeout_sec=0.05)
 
 
-def people_node(context):
+def people_node(context, *extra):
+    """Return a people node at the simulated rig's true pose (``extra``: more Parameters)."""
     overrides = [Parameter('world_frame', value='room')] + [
         Parameter(field, value=float(getattr(POSE, field)))
         for field in ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')]
-    return PeopleNode(context=context, parameter_overrides=overrides)
+    return PeopleNode(context=context, parameter_overrides=overrides + list(extra))
 
 
 def person_in_rectified_frame(x, y, seed):
@@ -221,11 +222,8 @@ def test_points_without_their_image_still_publish_and_are_counted(ros):
 
 def test_without_use_image_points_alone_find_the_person(ros):
     context, executor, add = ros
-    overrides = [Parameter('use_image', value=False)] + [
-        Parameter(field, value=float(getattr(POSE, field)))
-        for field in ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')]
     collector = add(PeopleCollector(context))
-    node = add(PeopleNode(context=context, parameter_overrides=overrides))
+    node = add(people_node(context, Parameter('use_image', value=False)))
     node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
     spin_until(executor, lambda: collector.count_publishers('people/detections') >= 1, 10.0)
     for sec in range(1, 4):
