@@ -27,6 +27,19 @@ def spin_for(executor, seconds):
         executor.spin_once(timeout_sec=0.02)
 
 
+def spin_until(executor, predicate, timeout_s):
+    """Spin until ``predicate()`` is true or ``timeout_s`` of wall time passed."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        executor.spin_once(timeout_sec=0.05)
+
+
+def keep_statuses(statuses, msg):
+    """Store each DiagnosticStatus of ``msg`` in ``statuses``: {name: {key: value}}."""
+    for status in msg.status:
+        statuses[status.name] = {kv.key: kv.value for kv in status.values}
+
+
 def spin_until_finished(executor, driver, timeout_s):
     """Spin until the driver has read its whole source (or ``timeout_s`` passes)."""
     deadline = time.monotonic() + timeout_s

@@ -112,27 +112,20 @@ def test_a_bag_written_by_rosbags_alone_replays_through_the_suite(tmp_path, peop
 def test_driver_bag_source_feeds_the_suite(tmp_path, people_80x60):
     bag = tmp_path / 'external'
     write_external_bag(bag, people_80x60, 3.0, pairs=15)
-    context, executor = new_context()
-    driver = DriverNode(context=context, parameter_overrides=[
-        Parameter('source', value='bag'), Parameter('bag', value=str(bag))])
-    nodes = [driver, RectifierNode(context=context), MatcherNode(context=context),
-             Clouds(context)]
-    for node in nodes:
-        executor.add_node(node)
-    try:
+    with ros_nodes() as (context, executor, add):
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        add(RectifierNode(context=context))
+        add(MatcherNode(context=context))
+        clouds = add(Clouds(context)).by_stamp
         spin_until_finished(executor, driver, 60.0)
         spin_for(executor, 1.0)
-        clouds = nodes[-1].by_stamp
-        assert driver.published >= 14 and len(clouds) >= 10
-        depths = [np.nanmedian(np.frombuffer(d, '<f4').reshape(-1, len(POINT_FIELDS))[:, 2])
-                  for d in clouds.values()]
-        assert np.median(depths) == pytest.approx(3.0, rel=0.01)
-        first = min(clouds)
-        assert first[0] == 1_700_000_000                  # the bag's own stamps
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    assert driver.published >= 14 and len(clouds) >= 10
+    depths = [np.nanmedian(np.frombuffer(d, '<f4').reshape(-1, len(POINT_FIELDS))[:, 2])
+              for d in clouds.values()]
+    assert np.median(depths) == pytest.approx(3.0, rel=0.01)
+    first = min(clouds)
+    assert first[0] == 1_700_000_000                  # the bag's own stamps
 
 
 def test_stepping_publishes_one_message_per_step(tmp_path, people_80x60):

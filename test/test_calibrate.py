@@ -11,11 +11,10 @@ import os
 
 import numpy as np
 import pytest
-import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import new_context, spin_for, spin_until_finished
+from ros_helpers import ros_nodes, spin_for, spin_until_finished
 from sensor_msgs.msg import Image
 from st_stereo.cli import main
 from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
@@ -164,34 +163,25 @@ class RectifiedPairs(Node):
 def test_round_trip_through_the_driver_and_rectifier_nodes(circle_session):
     """Calibrate -> YAML -> driver (bag source) loads it -> rectifier node -> equal rows."""
     _, out, _ = circle_session
-    context, executor = new_context()
     urls = [Parameter(f'{side}.camera_info_url', value=f'file://{out}/result/{side}.yaml')
             for side in ('left', 'right')]
-    nodes = [RectifiedPairs(context), RectifierNode(context=context)]
-    for node in nodes:
-        executor.add_node(node)
-    try:
+    with ros_nodes() as (context, executor, add):
+        received = add(RectifiedPairs(context)).images
+        add(RectifierNode(context=context))
         spin_for(executor, 1.0)             # discovery before the first pair
-        driver = DriverNode(context=context, parameter_overrides=[
-            Parameter('source', value='bag'), Parameter('bag', value=str(out / 'bag'))] + urls)
-        nodes.append(driver)
-        executor.add_node(driver)
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(out / 'bag'))] + urls))
         spin_until_finished(executor, driver, 60.0)
         spin_for(executor, 1.5)
-        received = nodes[0].images
-        stamps = sorted(set(received['left']) & set(received['right']))
-        assert driver.published == 60 and len(stamps) >= 55
-        differences = []
-        for stamp in stamps:
-            found = [detect_target(received[side][stamp], CIRCLES) for side in ('left', 'right')]
-            if found[0] and found[1]:
-                differences.append(found[0].points[:, 1] - found[1].points[:, 1])
-        assert len(differences) >= 5
-        assert np.median(np.abs(np.concatenate(differences))) < 0.1
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    stamps = sorted(set(received['left']) & set(received['right']))
+    assert driver.published == 60 and len(stamps) >= 55
+    differences = []
+    for stamp in stamps:
+        found = [detect_target(received[side][stamp], CIRCLES) for side in ('left', 'right')]
+        if found[0] and found[1]:
+            differences.append(found[0].points[:, 1] - found[1].points[:, 1])
+    assert len(differences) >= 5
+    assert np.median(np.abs(np.concatenate(differences))) < 0.1
 
 
 def test_bad_input_is_refused_with_the_reason(tmp_path, capsys):

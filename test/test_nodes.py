@@ -6,7 +6,6 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .c
 
 import os
 import threading
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -14,7 +13,7 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from ros_helpers import ideal_camera_info, ros_nodes
+from ros_helpers import ideal_camera_info, keep_statuses, ros_nodes, spin_until
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.camera_calibration import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
@@ -38,17 +37,8 @@ class Collector(Node):
         self.clouds, self.statuses = [], {}
         self.create_subscription(PointCloud2, 'points2', self.clouds.append,
                                  qos_profile_sensor_data)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
-
-
-def spin_until(executor, predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not predicate():
-        executor.spin_once(timeout_sec=0.05)
+        self.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda msg: keep_statuses(self.statuses, msg), 10)
 
 
 @pytest.mark.timeout(180)

@@ -8,7 +8,6 @@ simulated room and put into the rectified left frame by the simulator's camera m
 """
 
 import os
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
@@ -16,7 +15,7 @@ import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ros_helpers import ros_nodes
+from ros_helpers import keep_statuses, ros_nodes, spin_until
 from sensor_msgs.msg import PointCloud2
 from st_stereo.core.people import project_to_pixels
 from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg, \
@@ -46,17 +45,8 @@ class PeopleCollector(Node):
         self.create_subscription(PoseArray, 'people/poses', self.poses.append, 10)
         self.create_subscription(PointCloud2, 'people/detections', self.clouds.append, 10)
         self.create_subscription(MarkerArray, 'people/markers', self.markers.append, 10)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
-
-
-def spin_until(executor, predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not predicate():
-        executor.spin_once(timeout_sec=0.05)
+        self.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda msg: keep_statuses(self.statuses, msg), 10)
 
 
 def people_node(context, *extra):
@@ -65,6 +55,18 @@ def people_node(context, *extra):
         Parameter(field, value=float(getattr(POSE, field)))
         for field in ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')]
     return PeopleNode(context=context, parameter_overrides=overrides + list(extra))
+
+
+def connected_people_node(ros, *extra):
+    """Return (executor, collector, node): a people node with its camera_info, a collector."""
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context, *extra))
+    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    spin_until(executor, lambda: all(
+        collector.count_publishers(topic) >= 1
+        for topic in ('people/poses', 'people/detections', 'people/markers')), 10.0)
+    return executor, collector, node
 
 
 def person_in_rectified_frame(x, y, seed):
@@ -126,11 +128,7 @@ def test_people_wait_for_camera_info_then_come_with_the_pair_stamp_in_the_world_
 
 
 def test_an_empty_scene_publishes_empty_messages(ros):
-    context, executor, add = ros
-    collector = add(PeopleCollector(context))
-    node = add(people_node(context))
-    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
-    spin_until(executor, lambda: collector.count_publishers('people/poses') >= 1, 10.0)
+    executor, collector, node = connected_people_node(ros)
     feed(node, *pair_messages(7, np.zeros((0, 3))))
     spin_until(executor, lambda: collector.poses and collector.clouds and collector.markers,
                10.0)
@@ -139,10 +137,7 @@ def test_an_empty_scene_publishes_empty_messages(ros):
 
 
 def test_a_cloud_without_z_is_dropped_counted_and_reported(ros):
-    context, executor, add = ros
-    collector = add(PeopleCollector(context))
-    node = add(people_node(context))
-    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
+    executor, collector, node = connected_people_node(ros)
     cloud, image = pair_messages(3, person_in_rectified_frame(0.0, 3.0, 1))
     cloud.fields = [f for f in cloud.fields if f.name != 'z']
     feed(node, cloud, image)
@@ -153,11 +148,7 @@ def test_a_cloud_without_z_is_dropped_counted_and_reported(ros):
 
 
 def test_a_person_at_the_image_border_is_published_without_a_crash(ros):
-    context, executor, add = ros
-    collector = add(PeopleCollector(context))
-    node = add(people_node(context))
-    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
-    spin_until(executor, lambda: collector.count_publishers('people/detections') >= 1, 10.0)
+    executor, collector, node = connected_people_node(ros)
     # This person's right half is outside the image (columns 74-91 of 80): the pixels off the
     # image are clipped, never indexed out of range, and the body is cut by the side edge.
     for sec in range(1, 5):
@@ -205,11 +196,7 @@ def test_people_from_inputs_published_over_dds(ros):
 
 
 def test_points_without_their_image_still_publish_and_are_counted(ros):
-    context, executor, add = ros
-    collector = add(PeopleCollector(context))
-    node = add(people_node(context))
-    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
-    spin_until(executor, lambda: collector.count_publishers('people/poses') >= 1, 10.0)
+    executor, collector, node = connected_people_node(ros)
     for sec in range(1, 4):
         cloud, _ = pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec))
         feed(node, cloud, None)
@@ -221,11 +208,7 @@ def test_points_without_their_image_still_publish_and_are_counted(ros):
 
 
 def test_without_use_image_points_alone_find_the_person(ros):
-    context, executor, add = ros
-    collector = add(PeopleCollector(context))
-    node = add(people_node(context, Parameter('use_image', value=False)))
-    node._on_camera_info(camera_info_from_calibration(LEFT, Header()))
-    spin_until(executor, lambda: collector.count_publishers('people/detections') >= 1, 10.0)
+    executor, collector, node = connected_people_node(ros, Parameter('use_image', value=False))
     for sec in range(1, 4):
         node._on_points(pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec))[0])
     spin_until(executor, lambda: len(collector.clouds) >= 3, 10.0)
