@@ -24,6 +24,16 @@ def _add_config_option(parser):
                         help='set an ST parameter (repeatable; list: st-stereo params)')
 
 
+def _add_report_options(parser, strict=True, config=True):
+    """Add an evaluation's --strict (exit 1 on a missed criterion), --quiet and --set options."""
+    if strict:
+        parser.add_argument('--strict', action='store_true',
+                            help="exit 1 when one of the issue's criteria is not met")
+    parser.add_argument('--quiet', action='store_true', help='no progress output')
+    if config:
+        _add_config_option(parser)
+
+
 def _add_sequence_options(parser, sequences, stride):
     """Add the options every evaluation over the simulated sequences takes."""
     parser.add_argument('--sequences', default=sequences)
@@ -416,19 +426,13 @@ def build_parser():
     _add_sequence_options(e, 'walk_across,two_people,sit_down', 2)
     e.add_argument('--plot', help='box plots of the depth errors (PNG)')
     e.add_argument('--json', help='write the table as JSON')
-    e.add_argument('--strict', action='store_true',
-                   help="exit 1 when one of the issue's criteria is not met")
-    e.add_argument('--quiet', action='store_true')
-    _add_config_option(e)
+    _add_report_options(e)
     e.set_defaults(handler=command_eval_pipeline)
     e = eval_sub.add_parser('points', help='every published point scored per surface '
                             '(3-D, strict, disparity range) on the sequences and the recording')
     _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 2)
     e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
-    e.add_argument('--strict', action='store_true',
-                   help="exit 1 when one of the issue's criteria is not met")
-    e.add_argument('--quiet', action='store_true')
-    _add_config_option(e)
+    _add_report_options(e)
     e.set_defaults(handler=command_eval_points)
     e = eval_sub.add_parser('people', help='people on the floor: recall, precision, errors, '
                             'CLEAR MOT (motmetrics) on the sequences and the recording')
@@ -439,18 +443,14 @@ def build_parser():
     e.add_argument('--plot', help='floor plans of the true and estimated tracks (PNG)')
     e.add_argument('--people', action='append', metavar='NAME=VALUE', default=[],
                    help='set a people parameter (repeatable; the people node parameters, README)')
-    e.add_argument('--strict', action='store_true',
-                   help="exit 1 when one of the issue's criteria is not met")
-    e.add_argument('--quiet', action='store_true')
-    _add_config_option(e)
+    _add_report_options(e)
     e.set_defaults(handler=command_eval_people)
     e = eval_sub.add_parser('skew', help='camera skew: disparity errors on moving people '
                             'without and with compensation, by skew and image speed')
     _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 4)
     e.add_argument('--skews', default=','.join(f'{s:g}' for s in (-55, -25, 10, 25, 40, 55)),
                    help='skews t_right - t_left, milliseconds')
-    e.add_argument('--quiet', action='store_true')
-    _add_config_option(e)
+    _add_report_options(e, strict=False)
     e.set_defaults(handler=command_eval_skew)
     e = eval_sub.add_parser('calibration', help='st-stereo calibrate on simulated sessions '
                             'with known truth, and ST on the rectified result')
@@ -466,8 +466,7 @@ def build_parser():
                    help='frames of walk_across for the ST check (default 6)')
     e.add_argument('--json', help='write the report as JSON')
     e.add_argument('--markdown', help='write the tables as Markdown')
-    e.add_argument('--strict', action='store_true', help='exit 1 when a criterion is not met')
-    e.add_argument('--quiet', action='store_true')
+    _add_report_options(e, config=False)
     e.set_defaults(handler=command_eval_calibration)
     e = eval_sub.add_parser('all', help='every evaluation: the paper-reproduction report')
     e.add_argument('--out', default='docs/results.md', help='Markdown report path (figures '

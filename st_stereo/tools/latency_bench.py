@@ -94,9 +94,37 @@ def one_process(seconds, warmup=8):
         rclpy.try_shutdown()
 
 
+def _run_node_processes(commands, executor, monitors, seconds, grace_s):
+    """
+    Run ``commands`` as processes while ``executor`` spins the ``monitors``; stop them all.
+
+    The run ends once ``seconds`` have passed and no cloud came for 3 s (the recordings
+    ended), or ``grace_s`` after ``seconds`` at the latest. Returns (CPU seconds of the
+    processes, wall seconds).
+    """
+    processes = [subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for command in commands]
+    handles = [psutil.Process(p.pid) for p in processes]
+    try:
+        wall_start = time.monotonic()
+        cpu_start = sum(_cpu_seconds(h) for h in handles)
+        last_cloud = wall_start
+        while time.monotonic() < wall_start + seconds + grace_s:
+            clouds = sum(len(m.times) for m in monitors)
+            executor.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if sum(len(m.times) for m in monitors) != clouds:
+                last_cloud = now
+            elif now - last_cloud > 3.0 and now - wall_start > seconds:
+                break
+        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
+        return cpu, time.monotonic() - wall_start
+    finally:
+        _stop_processes(processes)
+
+
 def three_processes(seconds, warmup=8):
     """Run driver, rectifier and matcher as processes, the monitor here; returns the summary."""
-    env = dict(os.environ)
     commands = []
     for module in NODE_MODULES:
         extra = ['-p', f'duration:={float(seconds)}'] if 'driver' in module else []
@@ -106,27 +134,11 @@ def three_processes(seconds, warmup=8):
     monitor = SuiteMonitor(watch_raw=True)
     executor = SingleThreadedExecutor()
     executor.add_node(monitor)
-    processes = [subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL) for command in commands]
-    handles = [psutil.Process(p.pid) for p in processes]
     try:
-        wall_start = time.monotonic()
-        cpu_start = sum(_cpu_seconds(h) for h in handles)
-        deadline = wall_start + seconds + 20.0
-        last_cloud = time.monotonic()
-        while time.monotonic() < deadline:
-            count = len(monitor.times)
-            executor.spin_once(timeout_sec=0.05)
-            if len(monitor.times) != count:
-                last_cloud = time.monotonic()
-            elif monitor.times and time.monotonic() - last_cloud > 3.0:
-                break          # the driver's stream ended
-        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
-        wall = time.monotonic() - wall_start
+        cpu, wall = _run_node_processes(commands, executor, [monitor], seconds, 20.0)
         stale = monitor.matcher_values.get('pairs dropped_stale', 'n/a')
         return _summary(monitor, cpu, wall, warmup, {'dropped_stale': stale})
     finally:
-        _stop_processes(processes)
         monitor.destroy_node()
         rclpy.try_shutdown()
 
@@ -186,26 +198,9 @@ def many_rigs(count, seconds, warmup_s=1.0):
         executor.add_node(monitor)
     commands = [c for k in range(1, count + 1) for c in _rig_commands(k, seconds)]
     launched = time.time()
-    processes = [subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                 for command in commands]
-    handles = [psutil.Process(p.pid) for p in processes]
     try:
-        wall_start = time.monotonic()
-        cpu_start = sum(_cpu_seconds(h) for h in handles)
-        deadline = wall_start + seconds + 30.0
-        last_cloud = time.monotonic()
-        while time.monotonic() < deadline:
-            count_before = sum(len(m.times) for m in monitors)
-            executor.spin_once(timeout_sec=0.05)
-            if sum(len(m.times) for m in monitors) != count_before:
-                last_cloud = time.monotonic()
-            elif time.monotonic() - last_cloud > 3.0 and \
-                    time.monotonic() - wall_start > seconds:
-                break          # every rig's recording ended
-        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
-        wall = time.monotonic() - wall_start
+        cpu, wall = _run_node_processes(commands, executor, monitors, seconds, 30.0)
     finally:
-        _stop_processes(processes)
         for monitor in monitors:
             monitor.destroy_node()
         rclpy.try_shutdown()
