@@ -1,4 +1,4 @@
-"""Shared fixtures: the real thermal frames of ../shared/data/thermal."""
+"""Shared fixtures: the real thermal frames of ../shared/data/thermal, a private rclpy context."""
 
 import numpy as np
 import pytest
@@ -29,6 +29,14 @@ def lepton_frame(thermal_dir):
 def any_frame_80x60(request, thermal_dir):
     """Return each shared frame resized to 80x60."""
     return resize_area(read_thermal_image(thermal_dir / request.param), 80, 60)
+
+
+@pytest.fixture
+def ros():
+    """Yield (context, executor, add) of a private rclpy context (ros_helpers.ros_nodes)."""
+    from ros_helpers import ros_nodes      # rclpy only where a test asks for it
+    with ros_nodes() as nodes:
+        yield nodes
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from ros_helpers import ideal_camera_info, keep_statuses, ros_nodes, spin_until
+from ros_helpers import ideal_camera_info, keep_statuses, spin_until
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.camera_calibration import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
@@ -23,12 +23,6 @@ from st_stereo.nodes.rectifier_node import RectifierNode
 from std_msgs.msg import Header
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
-
-@pytest.fixture
-def ros():
-    with ros_nodes() as nodes:
-        yield nodes
 
 
 class Collector(Node):

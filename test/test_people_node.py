@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ros_helpers import keep_statuses, ros_nodes, spin_until
+from ros_helpers import keep_statuses, spin_until
 from sensor_msgs.msg import PointCloud2
 from st_stereo.core.people import project_to_pixels
 from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg, \
@@ -30,12 +30,6 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 RIG = standard_sequences()['walk_across'].rig
 POSE = RIG.rig_pose()
 LEFT = RIG.calibrations()[0]
-
-
-@pytest.fixture
-def ros():
-    with ros_nodes() as nodes:
-        yield nodes
 
 
 class PeopleCollector(Node):

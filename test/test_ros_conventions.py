@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import qos_profile_sensor_data
-from ros_helpers import RectifiedPairs, replay_through_matcher, ros_nodes, spin_for, \
+from ros_helpers import RectifiedPairs, replay_through_matcher, spin_for, \
     spin_until_finished
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.nodes.driver_node import DriverNode
@@ -42,12 +42,6 @@ class Streams(Node):
 
     def _on_diagnostics(self, msg):
         self.statuses += list(msg.status)
-
-
-@pytest.fixture
-def ros():
-    with ros_nodes() as nodes:
-        yield nodes
 
 
 @pytest.mark.timeout(120)
