@@ -108,7 +108,7 @@ def capture_target():
 
 
 def calibration_target():
-    from st_stereo.core.camera_calibration import calibration_from_bytes, CalibrationError
+    from st_stereo.core.calibration.files import calibration_from_bytes, CalibrationError
 
     def one(data):
         try:

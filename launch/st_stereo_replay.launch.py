@@ -21,7 +21,7 @@ REPLAY_ARGUMENTS = [
 
 def bag_calibrations(value):
     """Return the calibration for the TF: the URL arguments', else the bag's camera_info."""
-    from st_stereo.core.camera_calibration import load_calibration
+    from st_stereo.core.calibration.files import load_calibration
     from st_stereo.package_data import resolve_url
     from st_stereo.bag_streams import recorded_calibrations
     if value('left_camera_info_url') and value('right_camera_info_url'):

@@ -74,7 +74,7 @@ def recorded_calibrations(path):
     from rosbags.typesys import get_typestore, Stores
 
     from st_stereo.bag_reading import bag_messages, normalized_msgtype, open_bag
-    from st_stereo.core.camera_calibration import calibration_from_camera_info
+    from st_stereo.core.calibration.files import calibration_from_camera_info
     path = pathlib.Path(path)
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)

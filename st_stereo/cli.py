@@ -137,7 +137,7 @@ def command_params(args):
 
 def command_match(args):
     """Match a pair and write the matches (CSV or JSON), print a summary."""
-    from st_stereo.core.camera_calibration import load_calibration
+    from st_stereo.core.calibration.files import load_calibration
     from st_stereo.core.image_io import read_thermal_image
     from st_stereo.core.matcher import StereoMatcher
     from st_stereo.core.rectification import StereoRectifier

@@ -5,7 +5,7 @@ Imports ``launch`` and ``launch_ros`` when called (a ROS 2 install has them; the
 code never needs them). The transforms' numbers come from ``st_stereo.core.rig_pose``.
 """
 
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.config import parse_bool
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_from_mapping, \
     rig_static_transforms, static_transform_arguments

@@ -14,7 +14,7 @@ from ros_helpers import Clouds, new_context, replay_through_matcher, ros_nodes, 
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.fourier import fourier_shift_image_x
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.nodes.bags import BagPlayer, BagRecorder

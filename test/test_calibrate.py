@@ -17,9 +17,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import ros_nodes, spin_for, spin_until_finished
 from sensor_msgs.msg import Image
 from st_stereo.cli import main
-from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
-                                               detect_target, find_target)
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
+from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
+                                                detect_target, find_target)
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes.conversions import msg_to_image
 from st_stereo.nodes.driver_node import DriverNode

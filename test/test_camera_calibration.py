@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-from st_stereo.core.camera_calibration import (CalibrationError, CameraCalibration,
-                                               load_calibration, save_calibration)
+from st_stereo.core.calibration.files import (CalibrationError, CameraCalibration,
+                                              load_calibration, save_calibration)
 from st_stereo.core.rectification import StereoRectifier
 import yaml
 
@@ -47,7 +47,7 @@ def _write(tmp_path, document):
      'plumb_bob must hold 5 values'),
 ])
 def test_bad_files_name_file_and_field(tmp_path, mutate, message):
-    from st_stereo.core.camera_calibration import calibration_document
+    from st_stereo.core.calibration.files import calibration_document
     document = calibration_document(rig_calibration('left', 0.0))
     mutate(document)
     path = _write(tmp_path, document)

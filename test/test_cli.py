@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from st_stereo.cli import main
-from st_stereo.core.camera_calibration import save_calibration
+from st_stereo.core.calibration.files import save_calibration
 from st_stereo.core.config import config_from_assignments
 from st_stereo.core.fourier import fourier_shift_image_x
 from test_camera_calibration import rig_calibration

@@ -4,7 +4,7 @@ import pathlib
 
 import pytest
 from st_stereo.cli import parameters_yaml
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.config import STConfig
 from st_stereo.core.rectification import StereoRectifier
 import yaml

@@ -80,7 +80,7 @@ def test_eval_pipeline_command_prints_the_table(capsys, tmp_path):
 
 
 def test_calibration_check_judges_st_points_by_ray_casting_in_the_raw_camera():
-    from st_stereo.core.calibration_target import CalibrationTarget
+    from st_stereo.core.calibration.targets import CalibrationTarget
     from st_stereo.sim.rig import realistic_rig
     from st_stereo.sim.targets import calibration_scene, target_poses
     from st_stereo.tools.eval_calibration import range_errors

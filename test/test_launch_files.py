@@ -18,7 +18,7 @@ import types
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from st_stereo.core.camera_calibration import save_calibration
+from st_stereo.core.calibration.files import save_calibration
 from st_stereo.core.rig_pose import load_rig_pose, RigPoseError
 from st_stereo.sim.rig import realistic_rig
 

@@ -211,7 +211,7 @@ def test_an_intact_record_before_a_damaged_one_is_kept(tmp_path):
 
 def test_numbers_beyond_the_integer_digit_limit_are_named_errors(tmp_path):
     # Found in review: Python 3.11 refuses int() of more than 4300 digits with ValueError.
-    from st_stereo.core.camera_calibration import calibration_from_bytes, CalibrationError
+    from st_stereo.core.calibration.files import calibration_from_bytes, CalibrationError
     from st_stereo.lepton.capture import parse_capture
     header = b'{"x": ' + b'1' * 5000 + b'}'
     with pytest.raises(CaptureError, match='unreadable capture header'):

@@ -15,7 +15,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from ros_helpers import ideal_camera_info, keep_statuses, spin_until
 from sensor_msgs.msg import Image, PointCloud2
-from st_stereo.core.camera_calibration import CalibrationError
+from st_stereo.core.calibration.files import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.matcher_node import MatcherNode
@@ -171,8 +171,8 @@ def test_services_trigger_ffc_and_set_camera_info(ros, tmp_path):
     # Through the driver's ROS services, as a user's `ros2 service call` reaches them: a
     # service left unregistered, renamed, or answering with the wrong type fails here.
     from sensor_msgs.srv import SetCameraInfo
-    from st_stereo.core.camera_calibration import (calibration_from_camera_info,
-                                                   load_calibration, save_calibration)
+    from st_stereo.core.calibration.files import (calibration_from_camera_info,
+                                                  load_calibration, save_calibration)
     from std_srvs.srv import Trigger
     context, executor, add = ros
     target = tmp_path / 'left.yaml'

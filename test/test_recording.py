@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
 from st_stereo.sim.recording import frame_truth, load_ground_truth, write_recording
 from st_stereo.sim.sequences import SequenceRenderer, standard_sequences
 import yaml

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 from scipy import ndimage
-from st_stereo.core.target_refinement import (blurred_ellipse, ellipse_matrix,
-                                              refine_chessboard_corners, refine_circle_centres)
+from st_stereo.core.calibration.target_refinement import (
+    blurred_ellipse, ellipse_matrix, refine_chessboard_corners, refine_circle_centres)
 
 OVERSAMPLE = 12
 

@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 
-from st_stereo.core.camera_calibration import check_stereo_pair
+from st_stereo.core.calibration.files import check_stereo_pair
 from st_stereo.core.triangulation import StereoModel
 
 

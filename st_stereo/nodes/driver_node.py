@@ -32,7 +32,7 @@ from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
-from st_stereo.core.camera_calibration import calibration_from_camera_info, \
+from st_stereo.core.calibration.files import calibration_from_camera_info, \
     load_calibration, save_calibration
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError

@@ -17,7 +17,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 
-from st_stereo.core.camera_calibration import calibration_from_camera_info
+from st_stereo.core.calibration.files import calibration_from_camera_info
 from st_stereo.core.image_io import contrast_stretch_u8
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes import conversions, diagnostics

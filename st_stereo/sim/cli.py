@@ -85,8 +85,8 @@ def command_calibration(args):
     """Render pairs of a heated target (images + the true calibration) for ``calibrate``."""
     import cv2
 
-    from st_stereo.core.calibration_target import CalibrationTarget
-    from st_stereo.core.camera_calibration import save_calibration
+    from st_stereo.core.calibration.targets import CalibrationTarget
+    from st_stereo.core.calibration.files import save_calibration
     from st_stereo.sim.rig import realistic_rig
     from st_stereo.sim.targets import render_calibration_pairs
     target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)

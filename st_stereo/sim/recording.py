@@ -19,7 +19,7 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 
-from st_stereo.core.camera_calibration import load_calibration, save_calibration
+from st_stereo.core.calibration.files import load_calibration, save_calibration
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.lepton.pairing import pair_info_values
 

@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from st_stereo.core.camera_calibration import CameraCalibration
+from st_stereo.core.calibration.files import CameraCalibration
 from st_stereo.core.triangulation import DEFAULT_FX_BASELINE_PX_M
 
 

@@ -6,7 +6,7 @@ Pairs come from a directory of images (``left*.png`` / ``right*.png`` in it, or 
 stamp), or from a rosbag2 (the raw image topics ending in ``left/image_raw`` and
 ``right/image_raw``, paired by identical stamps; read with ``rosbags``, no ROS needed). The
 target is described on the command line. Detection, calibration and the distortion model are
-explained in ``st_stereo.core.calibration_target`` and ``st_stereo.core.stereo_calibration``.
+explained in ``st_stereo.core.calibration.targets`` and ``st_stereo.core.calibration.stereo``.
 """
 
 import json
@@ -16,13 +16,12 @@ import cv2
 import numpy as np
 
 from st_stereo.bag_streams import raw_image_messages
-from st_stereo.core.calibration_target import (CalibrationInputError, CalibrationTarget,
-                                               find_target, REJECTIONS, to_u8)
-from st_stereo.core.camera_calibration import save_calibration
+from st_stereo.core.calibration.files import save_calibration
+from st_stereo.core.calibration.stereo import calibrate_stereo, coverage, OUTLIER_VIEW_FACTOR
+from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
+                                                find_target, REJECTIONS, to_u8)
 from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
-from st_stereo.core.stereo_calibration import (calibrate_stereo, coverage,
-                                               OUTLIER_VIEW_FACTOR)
 
 IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
 MIN_COVERED_CELLS = 0.5

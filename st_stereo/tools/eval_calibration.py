@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from st_stereo.core.calibration_target import CalibrationTarget
+from st_stereo.core.calibration.targets import CalibrationTarget
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier

@@ -188,7 +188,7 @@ def evaluate_recording(recording, config=None, people_config=None, max_pairs=Non
     """
     import pathlib
 
-    from st_stereo.core.camera_calibration import load_calibration
+    from st_stereo.core.calibration.files import load_calibration
     from st_stereo.core.rectification import StereoRectifier
     from st_stereo.core.rig_pose import load_rig_pose
     from st_stereo.sim.recording import load_ground_truth

@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-from st_stereo.core.camera_calibration import load_calibration
+from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier

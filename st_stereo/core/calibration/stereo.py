@@ -13,8 +13,8 @@ import dataclasses
 import cv2
 import numpy as np
 
-from st_stereo.core.calibration_target import CalibrationInputError
-from st_stereo.core.camera_calibration import CameraCalibration
+from st_stereo.core.calibration.files import CameraCalibration
+from st_stereo.core.calibration.targets import CalibrationInputError
 
 MONO_FLAGS = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 COVERAGE_GRID = (4, 3)          # columns x rows of image cells for the coverage report

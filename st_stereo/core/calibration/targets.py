@@ -5,11 +5,11 @@ A heated target at 80x60 is a handful of blurred pixels per circle or square, wh
 detectors (tuned for sharp, large images) fail. Detection therefore runs on a 4x upsampled,
 contrast-stretched copy (bicubic), which gives the grid and rough positions; every circle centre
 and chessboard corner is then fitted on the original pixels with a model of a blurred,
-pixel-integrated blob or corner (``st_stereo.core.target_refinement``). Polarity (warm dots on a
-cold plate or cold holes in a warm plate) is found by trying both. A detection is accepted only
-if the points fit the target's plane through a homography to within ``max_homography_rms``
-pixels (lens distortion at 51 deg stays well below that over a target), which rejects partial or
-mis-ordered grids.
+pixel-integrated blob or corner (``st_stereo.core.calibration.target_refinement``). Polarity
+(warm dots on a cold plate or cold holes in a warm plate) is found by trying both. A detection
+is accepted only if the points fit the target's plane through a homography to within
+``max_homography_rms`` pixels (lens distortion at 51 deg stays well below that over a target),
+which rejects partial or mis-ordered grids.
 """
 
 import dataclasses
@@ -17,8 +17,9 @@ import dataclasses
 import cv2
 import numpy as np
 
+from st_stereo.core.calibration.target_refinement import refine_chessboard_corners, \
+    refine_circle_centres
 from st_stereo.core.image_io import contrast_stretch_u8
-from st_stereo.core.target_refinement import refine_chessboard_corners, refine_circle_centres
 
 TARGET_KINDS = ('chessboard', 'circles', 'acircles')
 UPSAMPLE = 4
@@ -158,10 +159,11 @@ def find_target(image, target, max_homography_rms=0.5):
 
     Both polarities are tried. OpenCV's detectors on the upsampled image give rough positions
     and the grid order; each point is then fitted on the original pixels
-    (``st_stereo.core.target_refinement``). Reasons, in ``REJECTIONS``: ``not found`` (no full
-    grid), ``too small`` (points nearer to each other than ``MIN_SPACING_PX``), ``fit failed``
-    (a point did not fit its model), ``not planar`` (points off the target's homography by
-    more than ``max_homography_rms``: a partial or mis-ordered grid).
+    (``st_stereo.core.calibration.target_refinement``). Reasons, in ``REJECTIONS``:
+    ``not found`` (no full grid), ``too small`` (points nearer to each other than
+    ``MIN_SPACING_PX``), ``fit failed`` (a point did not fit its model), ``not planar``
+    (points off the target's homography by more than ``max_homography_rms``: a partial or
+    mis-ordered grid).
     """
     base = to_u8(image)
     found, reasons = [], []
