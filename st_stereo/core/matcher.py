@@ -25,7 +25,6 @@ from st_stereo.core.subpixel import refine_subpixel_poc, SUBPIXEL_REJECTION_KEYS
 from st_stereo.core.triangulation import triangulate
 
 MIN_IMAGE_SIDE = 16
-STAGES = ('features', 'rough_matching', 'subpixel', 'depth_edges', 'triangulation')
 # Refined matches dropped after the sub-pixel stage, in this order (counts 'rejected_<key>').
 PUBLISH_REJECTION_KEYS = ('range', 'confidence', 'depth_edge', 'uniqueness')
 

@@ -12,7 +12,8 @@ import dataclasses
 import numpy as np
 
 from st_stereo.lepton.packets import (crc_matches, DISCARD_MASK, IMAGE_ROWS, is_discard,
-                                      NUMBER_MASK, packet_crc, packet_number, segment_number)
+                                      NUMBER_MASK, packet_crc, packet_number, segment_number,
+                                      TELEMETRY_ROWS)
 
 TELEMETRY_MODES = ('off', 'header', 'footer')
 
@@ -32,10 +33,12 @@ class FrameLayout:
         if telemetry == 'off':
             return cls('off', IMAGE_ROWS, tuple(range(IMAGE_ROWS)), ())
         if telemetry == 'header':
-            return cls('header', IMAGE_ROWS + 3, tuple(range(3, IMAGE_ROWS + 3)), (0, 1, 2))
+            return cls('header', IMAGE_ROWS + TELEMETRY_ROWS,
+                       tuple(range(TELEMETRY_ROWS, IMAGE_ROWS + TELEMETRY_ROWS)),
+                       tuple(range(TELEMETRY_ROWS)))
         if telemetry == 'footer':
-            return cls('footer', IMAGE_ROWS + 3, tuple(range(IMAGE_ROWS)),
-                       (IMAGE_ROWS, IMAGE_ROWS + 1, IMAGE_ROWS + 2))
+            return cls('footer', IMAGE_ROWS + TELEMETRY_ROWS, tuple(range(IMAGE_ROWS)),
+                       tuple(range(IMAGE_ROWS, IMAGE_ROWS + TELEMETRY_ROWS)))
         raise ValueError(f'telemetry mode: expected one of {", ".join(TELEMETRY_MODES)}, got '
                          f'{telemetry!r}')
 

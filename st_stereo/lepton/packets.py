@@ -120,11 +120,6 @@ def _payload_bytes(payload):
     return pixels.astype('>u2').tobytes()
 
 
-def pixels_from_payloads(payloads):
-    """Pixels of concatenated Raw14 payloads as a uint16 array of rows of 80."""
-    return np.frombuffer(payloads, dtype='>u2').astype(np.uint16).reshape(-1, PIXELS_PER_ROW)
-
-
 def packet_heads(chunk, packet_bytes=RAW14_PACKET_BYTES):
     """Return the IDs and CRC fields of every packet of a chunk, as two lists (vectorised)."""
     words = np.frombuffer(chunk, dtype='>u2').reshape(-1, packet_bytes // 2)

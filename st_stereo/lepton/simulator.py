@@ -21,8 +21,9 @@ import dataclasses
 import numpy as np
 
 from st_stereo.lepton.assembler import FrameLayout
-from st_stereo.lepton.packets import (CORE_FRAME_HZ, encode_frame_packets, make_discard_packet,
-                                      make_packet, PAYLOAD_BYTES, RAW14_PACKET_BYTES)
+from st_stereo.lepton.packets import (COPIES_PER_UNIQUE_FRAME, CORE_FRAME_HZ, encode_frame_packets,
+                                      make_discard_packet, make_packet, PAYLOAD_BYTES,
+                                      RAW14_PACKET_BYTES)
 from st_stereo.lepton.telemetry import encode_telemetry_row_a
 
 RESYNC_MIN_IDLE_S = 0.185
@@ -359,9 +360,9 @@ class LeptonSimulator:
         return packets
 
     def _start_frame(self, core):
-        unique, copy = divmod(core, 3)
+        unique, copy = divmod(core, COPIES_PER_UNIQUE_FRAME)
         if copy == 0 and self._ffc_left > 0:
-            self._ffc_left -= 3
+            self._ffc_left -= COPIES_PER_UNIQUE_FRAME
             if self._ffc_left <= 0:
                 self._level_offset += self.faults.ffc_offset_counts
                 self._ffc_pixels = None
