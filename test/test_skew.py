@@ -28,12 +28,54 @@ def test_a_static_scene_keeps_every_disparity_exactly(people_80x60):
     result = StereoMatcher(STConfig()).match(left, right)
     assert len(result) > 50
     compensator = SkewCompensator()
-    compensator.correct(result, previous, 0.0, 0.04)
-    corrected = compensator.correct(result, left, PERIOD_S, 0.04)
+    compensator.correct(result, previous, 0.0, 0.04,
+                        right=noisy(fourier_shift_image_x(texture, DISPARITY), 4))
+    corrected = compensator.correct(result, left, PERIOD_S, 0.04, right=right)
     assert compensator.counts['pairs_skew_compensated'] == 1     # the first had no past
+    assert compensator.counts['pairs_tracked_on_right'] == 1     # skew > 0: the right camera
     assert compensator.counts['features_moving'] == 0
     np.testing.assert_array_equal(corrected.disparity, result.disparity)
     np.testing.assert_array_equal(corrected.x_left, result.x_left)
+
+
+@pytest.mark.parametrize('skew_s', [0.05, -0.05])
+def test_the_skew_is_interpolated_on_the_camera_whose_frames_bracket_the_other(
+        people_80x60, skew_s):
+    # The scene accelerates: its offset is p(t) = v t + a t^2 / 2 (left frame at t = 0). The
+    # right image (at t = skew) is off by p(skew). The left camera's velocity (frames at -T
+    # and 0) gives p(skew) within a (T + skew) skew / 2 when skew < 0 (-T < skew < 0: an
+    # interpolation) but misses by a (T + skew) skew / 2 when skew > 0 (an extrapolation);
+    # the right camera's (frames at skew - T and skew) misses by a (T - skew) skew / 2 there.
+    # The compensator takes the camera that interpolates.
+    velocity, acceleration = 20.0, 100.0
+
+    def offset(t):
+        return velocity * t + 0.5 * acceleration * t * t
+    texture = thermal(people_80x60)
+
+    def camera(t, disparity, seed):
+        return noisy(fourier_shift_image_x(texture, disparity - offset(t)), seed)
+    left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
+    result = StereoMatcher(STConfig()).match(left, right)
+    inner = (result.x_left > 12) & (result.x_left < 68)     # away from the shifted-in border
+
+    def corrected_error(with_right):
+        compensator = SkewCompensator()
+        compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
+                            right=camera(skew_s - PERIOD_S, DISPARITY, 5) if with_right else None)
+        corrected = compensator.correct(result, left, 0.0, skew_s,
+                                        right=right if with_right else None)
+        assert compensator.counts['pairs_tracked_on_right'] == int(with_right and skew_s > 0)
+        keep = np.isin(corrected.x_left * 1000 + corrected.y,
+                       (result.x_left * 1000 + result.y)[inner])
+        return np.median(corrected.disparity[keep]) - DISPARITY
+    left_miss = -acceleration * (PERIOD_S + skew_s) * skew_s / 2
+    right_miss = acceleration * (skew_s - PERIOD_S) * skew_s / 2
+    assert corrected_error(False) == pytest.approx(left_miss, abs=0.06)
+    expected = right_miss if skew_s > 0 else left_miss
+    assert corrected_error(True) == pytest.approx(expected, abs=0.06)
+    if skew_s > 0:
+        assert abs(right_miss) < 0.5 * abs(left_miss)
 
 
 @pytest.mark.parametrize('velocity, skew_s', [(30.0, 0.04), (-20.0, 0.055), (25.0, -0.03)])
@@ -108,10 +150,11 @@ def test_a_rendered_room_without_people_keeps_every_point_exactly():
             left, right = rectifier.rectify(frame['left'], frame['right'])
             result = matcher.match(left, right, **rectifier.valid_keywords())
             corrected = compensator.correct(result, left, t, 0.055, rectifier.model,
-                                            matcher.disparity_bounds())
+                                            matcher.disparity_bounds(), right=right)
             np.testing.assert_array_equal(corrected.disparity, result.disparity)
             np.testing.assert_array_equal(corrected.points, result.points)
         assert compensator.counts['pairs_skew_compensated'] == 2
+        assert compensator.counts['pairs_tracked_on_right'] == 2
         assert compensator.counts['features_moving'] == 0
 
 

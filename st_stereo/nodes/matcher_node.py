@@ -199,14 +199,14 @@ class MatcherNode(Node):
                 time.monotonic() - self._waiting[0] > self.pair_info_wait:
             self._release_waiting()       # matched without skew compensation (counted)
 
-    def _compensate_skew(self, result, left, msg, model, bounds):
+    def _compensate_skew(self, result, left, right, msg, model, bounds):
         stamp = _stamp_key(msg)
         # Without its pair_info a pair has neither a skew nor a left acquisition time (the
         # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
         # usable previous time either.
         with self._pair_times_lock:
             left_time, skew = self.pair_times.pop(stamp, (None, None))
-        return self.skew.correct(result, left, left_time, skew, model, bounds)
+        return self.skew.correct(result, left, left_time, skew, model, bounds, right=right)
 
     def _model_for(self, left_info, right_info):
         # Built once per calibration, not per message (the rectifier's P rarely changes).
@@ -246,7 +246,7 @@ class MatcherNode(Node):
                                    right_valid=data_mask(right_msg, right))
             # The matcher's own configuration: a live change may replace self.config meanwhile.
             if matcher.config.skew_compensation:
-                result = self._compensate_skew(result, left, left_msg, model,
+                result = self._compensate_skew(result, left, right, left_msg, model,
                                                matcher.disparity_bounds())
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1

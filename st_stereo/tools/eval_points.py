@@ -42,8 +42,8 @@ class PairMatching:
     Rectify, match, correct the camera skew (``SkewCompensator``, as the matcher node does with
     the driver's ``pair_info``).
 
-    Pairs come in order; ``observe`` hands over the left image of a pair that is not scored
-    (every ``stride``-th pair is), so the next one is corrected against the frame before it.
+    Pairs come in order; ``observe`` hands over the images of a pair that is not scored
+    (every ``stride``-th pair is), so the next one is corrected against the pair before it.
     """
 
     def __init__(self, rectifier, config=None):
@@ -52,10 +52,11 @@ class PairMatching:
         self.matcher = StereoMatcher(self.config, model=rectifier.model)
         self.skew = SkewCompensator()
 
-    def observe(self, left_raw, left_time_s):
-        """Remember a pair's left image (its pair is not matched)."""
-        self.skew.previous = self.rectifier.rectify(left_raw, left_raw)[0]
-        self.skew.previous_time = left_time_s
+    def observe(self, left_raw, left_time_s, right_raw=None, skew_s=None):
+        """Remember a pair's images (the pair is not matched); right ones when known."""
+        left, right = self.rectifier.rectify(left_raw,
+                                             left_raw if right_raw is None else right_raw)
+        self.skew.remember(left, left_time_s, None if right_raw is None else right, skew_s)
 
     def match(self, left_raw, right_raw, left_time_s, skew_s):
         """Return the pair's MatchResult (skew-corrected when the configuration says so)."""
@@ -63,7 +64,7 @@ class PairMatching:
         result = self.matcher.match(left, right, **self.rectifier.valid_keywords())
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
-                                       self.matcher.disparity_bounds())
+                                       self.matcher.disparity_bounds(), right=right)
         return result
 
 
@@ -83,8 +84,9 @@ def evaluate_sequence(spec, config=None, stride=2, textures=None, max_frames=Non
     pairs = spec.pair_times()
     for index, (t_left, t_right) in enumerate(pairs):
         if index % stride:
-            if (index + 1) % stride == 0:      # the next scored pair's previous left frame
-                matching.observe(renderer.camera_frame('left', t_left), t_left)
+            if (index + 1) % stride == 0:      # the next scored pair's previous pair
+                matching.observe(renderer.camera_frame('left', t_left), t_left,
+                                 renderer.camera_frame('right', t_right), t_right - t_left)
             continue
         if max_frames and tally.frames >= max_frames:
             break
@@ -135,7 +137,7 @@ def evaluate_recording(recording, config=None, stride=1, max_frames=None):
         left_time = (acquired[0][frame] - stamps[0]) * 1e-9
         skew = (acquired[1][frame] - acquired[0][frame]) * 1e-9
         if index % stride:
-            matching.observe(left, left_time)
+            matching.observe(left, left_time, right, skew)
             continue
         if max_frames and tally.frames >= max_frames:
             break
@@ -234,7 +236,10 @@ def error_figure(path, times=(3.0,), config=None):
         matching = PairMatching(rectifier, config)
         pairs = spec.pair_times()
         index = max(1, int(np.argmin([abs(t_left - times[0]) for t_left, _ in pairs])))
-        matching.observe(renderer.camera_frame('left', pairs[index - 1][0]), pairs[index - 1][0])
+        previous_left, previous_right = pairs[index - 1]
+        matching.observe(renderer.camera_frame('left', previous_left), previous_left,
+                         renderer.camera_frame('right', previous_right),
+                         previous_right - previous_left)
         t_left, t_right = pairs[index]
         frame = renderer.frame(t_left, right_t=t_right)
         result = matching.match(frame['left'], frame['right'], t_left, t_right - t_left)
@@ -249,10 +254,10 @@ def error_figure(path, times=(3.0,), config=None):
     for index, (stamp, left, right) in enumerate(recording_pairs(recording)):
         frame = int(np.argmin(np.abs(stamps - stamp)))
         left_time = (int(truth['left_stamp_ns'][frame]) - int(stamps[0])) * 1e-9
-        if index < 40:
-            matching.observe(left, left_time)
-            continue
         skew = (int(truth['right_stamp_ns'][frame]) - int(truth['left_stamp_ns'][frame])) * 1e-9
+        if index < 40:
+            matching.observe(left, left_time, right, skew)
+            continue
         result = matching.match(left, right, left_time, skew)
         panels.append(('recording', rectifier, rectifier.rectify(left, left)[0], result,
                        frame_truth(truth, frame)))

@@ -6,7 +6,10 @@ one (``SequenceRenderer.frame(t, right_t=t + skew)``; the ground truth is the sc
 instant). ST matches each rectified pair; every match on a person (visible to the right camera)
 is scored by its signed disparity error against the true disparity at its left pixel, without
 and with the skew correction of ``st_stereo.core.skew`` (each feature's image velocity tracked
-from the left camera's previous unique frame, one frame period earlier). The same left frames
+from the previous unique frame, one frame period earlier, of the camera whose two frames
+bracket the other camera's instant: the right camera for a positive skew, the left one for a
+negative skew; ``left camera only`` is the correction before 2026-12-03, the left camera's
+velocity whatever the sign). The same left frames
 are also matched against a synchronized right frame (skew 0): the reference the correction
 must reach. Errors are split by skew and by the person's image speed (its head's horizontal
 speed in the rectified image). The held-out sequence is reported apart.
@@ -19,7 +22,8 @@ import numpy as np
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
-from st_stereo.core.skew import feature_motion, skew_corrected_disparity
+from st_stereo.core.skew import bracketing_motion, CameraFrames, feature_motion, \
+    skew_corrected_disparity
 from st_stereo.sim.scoring import match_pixels, people_disparity_errors, PERSON_LABEL_BASE, \
     SPEED_BINS_PX_S as SPEED_BINS
 
@@ -74,13 +78,26 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
                 records.append({'skew_ms': 0.0, 'condition': 'synchronized',
                                 'error': error, 'speed': speed})
                 continue
+            previous_right_raw = renderer.camera_frame('right', t + skew_ms * 1e-3 - period)
+            previous_right = rectifier.rectify(previous_right_raw, previous_right_raw)[1]
             tick = time.perf_counter()
-            motion = feature_motion(previous, left, result.x_left, result.y, period)
+            motion, _ = bracketing_motion(result.x_left, result.y, result.disparity,
+                                          skew_ms * 1e-3, CameraFrames(previous, left, period),
+                                          CameraFrames(previous_right, right, period))
             corrected = skew_corrected_disparity(result.disparity, motion.velocity_x,
                                                  skew_ms * 1e-3)
             elapsed_ms = 1e3 * (time.perf_counter() - tick)
             corrected_error, _ = people_disparity_errors(model, frame['truth'], result.x_left,
                                                          result.y, corrected, speeds)
+            left_only = skew_corrected_disparity(
+                result.disparity,
+                feature_motion(previous, left, result.x_left, result.y, period).velocity_x,
+                skew_ms * 1e-3)
+            records.append({'skew_ms': skew_ms, 'condition': 'left camera only',
+                            'error': people_disparity_errors(model, frame['truth'],
+                                                             result.x_left, result.y,
+                                                             left_only, speeds)[0],
+                            'speed': speed})
             records.append({'skew_ms': skew_ms, 'condition': 'skewed',
                             'error': error, 'speed': speed})
             records.append({'skew_ms': skew_ms, 'condition': 'compensated',
@@ -131,8 +148,9 @@ def speed_table(records):
     """
     lines = ['| head speed (px/s) | skew (ms) | matches | median, skewed | median, compensated '
              '| median, synchronized | median abs, skewed | median abs, compensated | median '
-             'abs, corrected by the true head velocity | median abs, synchronized |',
-             '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
+             'abs, left camera only | median abs, corrected by the true head velocity | '
+             'median abs, synchronized |',
+             '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
     for low, high in SPEED_BINS:
         def pick(skew, condition):
             return [r['error'][(r['speed'] >= low) & (r['speed'] < high)] for r in records
@@ -150,6 +168,7 @@ def speed_table(records):
                          f'{median_c:+.3f} | {median0:+.3f} | '
                          f'{median_abs(pick(skew, "skewed")):.3f} | '
                          f'{median_abs(pick(skew, "compensated")):.3f} | '
+                         f'{median_abs(pick(skew, "left camera only")):.3f} | '
                          f'{median_abs(pick(skew, "head velocity")):.3f} | {abs0:.3f} |')
     return '\n'.join(lines)
 
