@@ -240,7 +240,8 @@ def print_summary(driver, matcher, monitor, depth):
     counts = matcher.skew.counts
     print(f'  skew compensation: {counts["pairs_skew_compensated"]} pairs corrected, '
           f'{counts["pairs_without_skew"]} without pair_info, '
-          f'{counts["pairs_without_previous"]} without a previous left frame; '
+          f'{counts["pairs_without_previous"]} without a previous pair, '
+          f'{counts["pairs_tracked_on_right"]} tracked on the right camera (positive skew); '
           f'{counts["features_moving"]} moving features corrected')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
