@@ -177,3 +177,83 @@ def test_only_windows_that_changed_are_searched_and_the_rest_are_static(people_8
     assert motion.changed[moving_side].mean() > 0.9
     assert np.median(motion.velocity_x[moving_side & motion.moving]) == \
         pytest.approx(3.0 / PERIOD_S, abs=1.0)    # as the test above
+
+
+def moving_scene(people_80x60, skew_s, velocity=30.0):
+    """Return frames of a scene moving at ``velocity`` px/s (both cameras) and its matches."""
+    texture = thermal(people_80x60)
+
+    def camera(t, disparity, seed):
+        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    frames = {'previous_left': camera(-PERIOD_S, 0.0, 1), 'left': camera(0.0, 0.0, 2),
+              'previous_right': camera(skew_s - PERIOD_S, DISPARITY, 3),
+              'right': camera(skew_s, DISPARITY, 4)}
+    result = StereoMatcher(STConfig()).match(frames['left'], frames['right'])
+    return frames, result
+
+
+def run_pair(compensator, frames, result, skew_s, ffc=((False, False), (False, False)),
+             models=(None, None), right_period=PERIOD_S):
+    compensator.correct(result, frames['previous_left'], -PERIOD_S, skew_s + PERIOD_S -
+                        right_period, model=models[0], right=frames['previous_right'],
+                        ffc=ffc[0])
+    return compensator.correct(result, frames['left'], 0.0, skew_s, model=models[1],
+                               right=frames['right'], ffc=ffc[1])
+
+
+def test_a_camera_in_ffc_is_not_tracked_and_the_other_one_serves(people_80x60):
+    # pair_info says a camera is in FFC (frozen or about to freeze): its previous frame is
+    # older than its stamp. A positive skew then falls back on the left camera (extrapolated,
+    # counted); with both cameras in FFC nothing is corrected (counted).
+    skew_s = 0.04
+    frames, result = moving_scene(people_80x60, skew_s)
+    right_ffc = SkewCompensator()
+    corrected = run_pair(right_ffc, frames, result, skew_s, ffc=((False, True), (False, False)))
+    assert right_ffc.counts['pairs_tracked_on_right'] == 0
+    assert right_ffc.counts['pairs_extrapolated'] == 1
+    assert right_ffc.counts['features_moving'] > 0
+    inner = (corrected.x_left > 12) & (corrected.x_left < 68)
+    assert abs(np.median(corrected.disparity[inner]) - DISPARITY) < 0.1
+    both = SkewCompensator()
+    unchanged = run_pair(both, frames, result, skew_s, ffc=((True, False), (False, True)))
+    assert unchanged is result
+    assert both.counts['pairs_in_ffc'] == 1 and both.counts['pairs_skew_compensated'] == 0
+
+
+def test_a_new_calibration_is_not_compared_with_the_previous_pair(people_80x60):
+    # The matcher node builds one stereo model per calibration: another model object means the
+    # previous images were rectified differently, so they are not compared (counted).
+    skew_s = 0.04
+    frames, result = moving_scene(people_80x60, skew_s)
+    compensator = SkewCompensator()
+    unchanged = run_pair(compensator, frames, result, skew_s, models=(object(), object()))
+    assert unchanged is result
+    assert compensator.counts['pairs_calibration_changed'] == 1
+    assert compensator.counts['pairs_skew_compensated'] == 0
+
+
+def test_a_stale_right_frame_falls_back_on_the_left_camera_and_is_counted(people_80x60):
+    # The previous right frame is more than max_period_s older than the current one (a
+    # dropped pair and a re-pairing): the left camera's frames serve, extrapolating.
+    skew_s = 0.04
+    frames, result = moving_scene(people_80x60, skew_s)
+    compensator = SkewCompensator(max_period_s=0.25)
+    corrected = run_pair(compensator, frames, result, skew_s, right_period=0.3)
+    assert compensator.counts['pairs_tracked_on_right'] == 0
+    assert compensator.counts['pairs_extrapolated'] == 1
+    inner = (corrected.x_left > 12) & (corrected.x_left < 68)
+    assert abs(np.median(corrected.disparity[inner]) - DISPARITY) < 0.1
+
+
+def test_a_pair_without_pair_info_leaves_the_next_one_without_a_previous_pair(people_80x60):
+    skew_s = 0.04
+    frames, result = moving_scene(people_80x60, skew_s)
+    compensator = SkewCompensator()
+    compensator.correct(result, frames['previous_left'], -2 * PERIOD_S, skew_s,
+                        right=frames['previous_right'])
+    compensator.correct(result, frames['previous_left'], None, None,
+                        right=frames['previous_right'])            # no pair_info
+    assert compensator.correct(result, frames['left'], 0.0, skew_s,
+                               right=frames['right']) is result
+    assert compensator.counts['pairs_without_skew'] == 1
+    assert compensator.counts['pairs_without_previous'] == 2

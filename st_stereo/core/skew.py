@@ -18,8 +18,10 @@ when the right one exposed first (``skew_s < 0``: ``t_R`` lies between the left 
 previous frame and its current one), the right camera when it exposed after the left one
 (``skew_s > 0``: ``t_L`` lies between the right camera's two frames; the feature is tracked
 at its right pixel ``x_L - d'``). Measured on the tuning sequences, people faster than 25 px/s,
-skew +40 ms: median abs error 0.456 px with the left camera's velocity, 0.372 px with the
-right camera's (docs/skew.md). Without a previous right frame the left camera serves.
+skew +40 ms: median abs error 0.468 px with the left camera's velocity, 0.378 px with the
+right camera's (docs/skew.md). When the bracketing camera has no usable previous frame (not
+known, more than ``max_period_s`` old, another shape, frozen by an FFC) the other one serves,
+extrapolating, and the pair is counted as ``pairs_extrapolated``.
 Features that do not move (their window did not change beyond the noise, or best offset 0 and
 a sub-pixel shift below ``static_px``) get no correction at all, so a static scene keeps
 exactly the same disparities. Windows that did not change are not tracked at all (the search
@@ -39,7 +41,7 @@ NOISE_PERCENTILE = 5.0      # of the frame difference's local spread: the noise 
 
 @dataclasses.dataclass
 class FeatureMotion:
-    """Horizontal image velocity of each feature, from the left camera's previous frame."""
+    """Horizontal image velocity of each feature, from a camera's previous frame."""
 
     velocity_x: np.ndarray      # px/s in the rectified image (0 where static or untracked)
     moving: np.ndarray          # bool: a correction applies
@@ -51,12 +53,13 @@ class FeatureMotion:
 def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
                    min_ncc=0.5, static_px=0.25, change_noise=2.0):
     """
-    Measure each feature's horizontal image velocity between two left frames.
+    Measure each feature's horizontal image velocity between two frames of one camera.
 
     Parameters
     ----------
     previous_left, left : ndarray, shape (rows, cols)
-        The left camera's previous unique rectified frame and the current one.
+        A camera's previous unique rectified frame and the current one (the names are the
+        left camera's, which served alone before ``bracketing_motion``).
     x, y : ndarray of int, shape (n,)
         Feature pixels in ``left``.
     period_s : float
@@ -173,7 +176,8 @@ def skew_corrected_disparity(disparity, velocity_x, skew_s):
 
 
 SKEW_COUNT_KEYS = ('pairs_skew_compensated', 'pairs_without_skew', 'pairs_without_previous',
-                   'pairs_tracked_on_right', 'features_moving', 'features_untracked',
+                   'pairs_calibration_changed', 'pairs_in_ffc', 'pairs_tracked_on_right',
+                   'pairs_extrapolated', 'features_moving', 'features_untracked',
                    'rejected_skew_range')
 
 
@@ -191,21 +195,25 @@ def bracketing_motion(x_left, y, disparity, skew_s, left_frames, right_frames=No
     Measure the features' motion on the camera whose frames bracket the other's instant.
 
     ``skew_s > 0`` (the right camera exposed after the left one) with ``right_frames``: each
-    feature is tracked at its right pixel ``rint(x_left - disparity)`` on the right camera's
-    frames; otherwise on the left camera's, at ``x_left`` (see the module docstring).
+    feature is tracked at its right pixel ``rint(x_left - disparity)`` (``disparity`` as the
+    matcher gives it, principal-point offset included) on the right camera's frames; otherwise
+    on the left camera's, at ``x_left`` (see the module docstring). Either may be None (not
+    known, or frozen by an FFC): the other serves, extrapolating.
 
     Returns
     -------
-    (FeatureMotion, bool): the motion, and whether the right camera's frames were used.
+    (FeatureMotion, str): the motion and the camera tracked (``'left'`` or ``'right'``).
 
     """
-    if skew_s > 0 and right_frames is not None:
+    if right_frames is not None and (skew_s > 0 or left_frames is None):
         cols = np.shape(right_frames.current)[1]
         x_right = np.clip(np.rint(np.asarray(x_left) - np.asarray(disparity)), 0, cols - 1)
         return feature_motion(right_frames.previous, right_frames.current,
-                              x_right.astype(np.int64), y, right_frames.period_s), True
+                              x_right.astype(np.int64), y, right_frames.period_s), 'right'
+    if left_frames is None:
+        raise ValueError('bracketing_motion: neither camera has two frames')
     return feature_motion(left_frames.previous, left_frames.current, x_left, y,
-                          left_frames.period_s), False
+                          left_frames.period_s), 'left'
 
 
 class SkewCompensator:
@@ -216,11 +224,14 @@ class SkewCompensator:
     when given, its rectified right image), the left acquisition time and the skew
     (``t_right - t_left``; both None when the pair does not say, and then the next pair has no
     previous time either): it measures the features' motion against the previous pair's
-    images (``bracketing_motion``: the right camera's when the right one exposed later and its
-    previous frame is known, else the left camera's; each at most ``max_period_s`` older),
-    corrects their disparities, re-triangulates, drops matches the correction takes outside
-    the admissible disparities, and remembers the images. Counts of every case accumulate in
-    ``counts``.
+    images (``bracketing_motion``: the right camera's when the right one exposed later, the
+    left camera's when it exposed first; each at most ``max_period_s`` older), corrects their
+    disparities, re-triangulates, drops matches the correction takes outside the admissible
+    disparities, and remembers the images. A camera in FFC (``ffc``, from ``pair_info``) in this
+    pair or the previous one is not tracked (its frames are frozen: a frozen frame is older than
+    its stamp); the other one serves, extrapolating. A pair whose stereo model is another object
+    than the previous pair's (a new calibration: the previous images were rectified
+    differently) is not corrected. Counts of every case accumulate in ``counts``.
     """
 
     def __init__(self, max_period_s=0.25):
@@ -229,14 +240,19 @@ class SkewCompensator:
         self.previous_time = None
         self.previous_right = None
         self.previous_right_time = None
+        self.previous_model = None
+        self.previous_ffc = (False, False)
         self.counts = dict.fromkeys(SKEW_COUNT_KEYS, 0)
 
-    def remember(self, left, left_time_s, right=None, skew_s=None):
+    def remember(self, left, left_time_s, right=None, skew_s=None, model=None,
+                 ffc=(False, False)):
         """Keep a pair's images as the previous ones (``correct`` does it for every pair)."""
         self.previous, self.previous_time = np.asarray(left), left_time_s
         known = right is not None and left_time_s is not None and skew_s is not None
         self.previous_right = np.asarray(right) if known else None
         self.previous_right_time = left_time_s + skew_s if known else None
+        self.previous_model = model
+        self.previous_ffc = tuple(bool(flag) for flag in ffc)
 
     def _frames(self, previous, previous_time, current, time_s):
         period = None if previous_time is None or time_s is None else time_s - previous_time
@@ -245,26 +261,40 @@ class SkewCompensator:
             return None
         return CameraFrames(previous, np.asarray(current), period)
 
-    def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None, right=None):
+    def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None, right=None,
+                ffc=(False, False)):
         """Return ``result`` with skew-corrected disparities and points (or unchanged)."""
         left_frames = self._frames(self.previous, self.previous_time, left, left_time_s)
         right_frames = None
         if skew_s is not None and left_time_s is not None:
             right_frames = self._frames(self.previous_right, self.previous_right_time, right,
                                         left_time_s + skew_s)
-        self.remember(left, left_time_s, right, skew_s)
+        recalibrated = model is not None and self.previous_model is not None and \
+            model is not self.previous_model
+        frozen = [now or before for now, before in zip(ffc, self.previous_ffc)]
+        self.remember(left, left_time_s, right, skew_s, model, ffc)
         if skew_s is None or left_time_s is None:
             self.counts['pairs_without_skew'] += 1
             return result
-        if left_frames is None:
+        if recalibrated:
+            self.counts['pairs_calibration_changed'] += 1
+            return result
+        if left_frames is None and right_frames is None:
             self.counts['pairs_without_previous'] += 1
             return result
-        self.counts['pairs_skew_compensated'] += 1
         if not len(result) or skew_s == 0.0:
+            self.counts['pairs_skew_compensated'] += 1
             return result
-        motion, on_right = bracketing_motion(result.x_left, result.y, result.disparity, skew_s,
-                                             left_frames, right_frames)
-        self.counts['pairs_tracked_on_right'] += int(on_right)
+        left_frames = None if frozen[0] else left_frames
+        right_frames = None if frozen[1] else right_frames
+        if left_frames is None and right_frames is None:
+            self.counts['pairs_in_ffc'] += 1
+            return result
+        self.counts['pairs_skew_compensated'] += 1
+        motion, camera = bracketing_motion(result.x_left, result.y, result.disparity, skew_s,
+                                           left_frames, right_frames)
+        self.counts['pairs_tracked_on_right'] += int(camera == 'right')
+        self.counts['pairs_extrapolated'] += int((camera == 'right') != (skew_s > 0))
         self.counts['features_moving'] += int(motion.moving.sum())
         self.counts['features_untracked'] += int((motion.changed & ~motion.tracked).sum())
         if not motion.moving.any():

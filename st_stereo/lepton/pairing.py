@@ -188,6 +188,16 @@ def pair_info_values(skew_s, stamps_s, frame_indices, ffc):
     return values
 
 
+def pair_ffc_from_values(values):
+    """
+    Return ``(left in FFC, right in FFC)`` from ``pair_info`` key -> value text.
+
+    A camera is in FFC when its telemetry said the correction is imminent or in progress (its
+    frames frozen or about to freeze); a missing key (an older recording) is taken as not.
+    """
+    return tuple(values.get(f'{side} ffc') == 'True' for side in ('left', 'right'))
+
+
 def pair_times_from_values(values):
     """
     Return ``(left acquisition time s, skew s)`` from ``pair_info`` key -> value text.

@@ -37,7 +37,8 @@ from st_stereo.core.calibration.files import calibration_from_camera_info, \
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError
 from st_stereo.lepton.packets import UNIQUE_FRAME_HZ
-from st_stereo.lepton.pairing import pair_info_values, PairSynchronizer, SKEW_KEY
+from st_stereo.lepton.pairing import pair_ffc_from_values, pair_info_values, \
+    PairSynchronizer, SKEW_KEY
 from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
 from st_stereo.nodes import conversions, diagnostics
@@ -354,7 +355,7 @@ class DriverNode(Node):
             values = self.recorded_pair_info.values(header.stamp.sec * 1_000_000_000 +
                                                     header.stamp.nanosec)
             if values is not None:
-                ffc = [values.get(f'{side} ffc') == 'True' for side in SIDES]
+                ffc = list(pair_ffc_from_values(values))
         if values is None:
             values = pair_info_values(
                 pair.skew, [self._to_stamp_s(frame.stamp, live, clock_start, base)

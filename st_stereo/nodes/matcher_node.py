@@ -30,7 +30,7 @@ from st_stereo.core.kernels import use_compiled, warm_up
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.skew import SkewCompensator
 from st_stereo.core.triangulation import StereoModel
-from st_stereo.lepton.pairing import pair_times_from_values
+from st_stereo.lepton.pairing import pair_ffc_from_values, pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import MATCHER_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters, declare_st_parameters, \
@@ -182,7 +182,7 @@ class MatcherNode(Node):
             return
         stamp = _stamp_key(msg)
         with self._pair_times_lock:
-            self.pair_times[stamp] = (left_time, skew)
+            self.pair_times[stamp] = (left_time, skew, pair_ffc_from_values(values))
             while len(self.pair_times) > 64:
                 self.pair_times.pop(next(iter(self.pair_times)))
         self.pair_info_seen = True
@@ -205,8 +205,9 @@ class MatcherNode(Node):
         # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
         # usable previous time either.
         with self._pair_times_lock:
-            left_time, skew = self.pair_times.pop(stamp, (None, None))
-        return self.skew.correct(result, left, left_time, skew, model, bounds, right=right)
+            left_time, skew, ffc = self.pair_times.pop(stamp, (None, None, (False, False)))
+        return self.skew.correct(result, left, left_time, skew, model, bounds, right=right,
+                                 ffc=ffc)
 
     def _model_for(self, left_info, right_info):
         # Built once per calibration, not per message (the rectifier's P rarely changes).

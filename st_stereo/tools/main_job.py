@@ -241,7 +241,9 @@ def print_summary(driver, matcher, monitor, depth):
     print(f'  skew compensation: {counts["pairs_skew_compensated"]} pairs corrected, '
           f'{counts["pairs_without_skew"]} without pair_info, '
           f'{counts["pairs_without_previous"]} without a previous pair, '
-          f'{counts["pairs_tracked_on_right"]} tracked on the right camera (positive skew); '
+          f'{counts["pairs_tracked_on_right"]} tracked on the right camera (positive skew), '
+          f'{counts["pairs_extrapolated"]} extrapolated, {counts["pairs_in_ffc"]} in FFC, '
+          f'{counts["pairs_calibration_changed"]} after a new calibration; '
           f'{counts["features_moving"]} moving features corrected')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
