@@ -52,11 +52,10 @@ class PairMatching:
         self.matcher = StereoMatcher(self.config, model=rectifier.model)
         self.skew = SkewCompensator()
 
-    def observe(self, left_raw, left_time_s, right_raw=None, skew_s=None):
-        """Remember a pair's images (the pair is not matched); right ones when known."""
-        left, right = self.rectifier.rectify(left_raw,
-                                             left_raw if right_raw is None else right_raw)
-        self.skew.remember(left, left_time_s, None if right_raw is None else right, skew_s)
+    def observe(self, left_raw, right_raw, left_time_s, skew_s):
+        """Remember a pair's images (the pair is not matched)."""
+        left, right = self.rectifier.rectify(left_raw, right_raw)
+        self.skew.remember(left, left_time_s, right, skew_s)
 
     def match(self, left_raw, right_raw, left_time_s, skew_s):
         """Return the pair's MatchResult (skew-corrected when the configuration says so)."""
@@ -85,8 +84,9 @@ def evaluate_sequence(spec, config=None, stride=2, textures=None, max_frames=Non
     for index, (t_left, t_right) in enumerate(pairs):
         if index % stride:
             if (index + 1) % stride == 0:      # the next scored pair's previous pair
-                matching.observe(renderer.camera_frame('left', t_left), t_left,
-                                 renderer.camera_frame('right', t_right), t_right - t_left)
+                matching.observe(renderer.camera_frame('left', t_left),
+                                 renderer.camera_frame('right', t_right), t_left,
+                                 t_right - t_left)
             continue
         if max_frames and tally.frames >= max_frames:
             break
@@ -137,7 +137,7 @@ def evaluate_recording(recording, config=None, stride=1, max_frames=None):
         left_time = (acquired[0][frame] - stamps[0]) * 1e-9
         skew = (acquired[1][frame] - acquired[0][frame]) * 1e-9
         if index % stride:
-            matching.observe(left, left_time, right, skew)
+            matching.observe(left, right, left_time, skew)
             continue
         if max_frames and tally.frames >= max_frames:
             break
@@ -237,8 +237,8 @@ def error_figure(path, times=(3.0,), config=None):
         pairs = spec.pair_times()
         index = max(1, int(np.argmin([abs(t_left - times[0]) for t_left, _ in pairs])))
         previous_left, previous_right = pairs[index - 1]
-        matching.observe(renderer.camera_frame('left', previous_left), previous_left,
-                         renderer.camera_frame('right', previous_right),
+        matching.observe(renderer.camera_frame('left', previous_left),
+                         renderer.camera_frame('right', previous_right), previous_left,
                          previous_right - previous_left)
         t_left, t_right = pairs[index]
         frame = renderer.frame(t_left, right_t=t_right)
@@ -256,7 +256,7 @@ def error_figure(path, times=(3.0,), config=None):
         left_time = (int(truth['left_stamp_ns'][frame]) - int(stamps[0])) * 1e-9
         skew = (int(truth['right_stamp_ns'][frame]) - int(truth['left_stamp_ns'][frame])) * 1e-9
         if index < 40:
-            matching.observe(left, left_time, right, skew)
+            matching.observe(left, right, left_time, skew)
             continue
         result = matching.match(left, right, left_time, skew)
         panels.append(('recording', rectifier, rectifier.rectify(left, left)[0], result,
