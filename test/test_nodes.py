@@ -342,3 +342,21 @@ def test_latest_slot_keeps_the_newest_item_and_counts_the_replaced():
     slot.put('f')
     assert slot.close() == 1                          # 'f' was still waiting: dropped
     assert slot.take() is None                        # closed: returns at once
+
+
+def test_a_runtime_error_is_the_shutdown_only_once_the_context_is_shut_down():
+    # CI once saw stereo_pipeline exit 1 after a clean Ctrl-C: the signal handler shut the
+    # context down while the executor was taking a message, and the take raised RuntimeError.
+    import rclpy
+    from st_stereo.nodes.runtime import until_shutdown
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(RuntimeError, match='while running'):
+            with until_shutdown(context):
+                raise RuntimeError('a failure while running')
+        rclpy.shutdown(context=context)
+        with until_shutdown(context):
+            raise RuntimeError("Unable to convert call argument '0' to Python object")
+    finally:
+        rclpy.try_shutdown(context=context)

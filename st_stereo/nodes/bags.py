@@ -16,7 +16,6 @@ import sys
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.utilities import remove_ros_args
@@ -25,7 +24,7 @@ from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 from st_stereo.bag_reading import bag_messages, BagError, message_class, open_bag
-from st_stereo.nodes.runtime import with_default_namespace
+from st_stereo.nodes.runtime import until_shutdown, with_default_namespace
 
 COMPRESSION_MODES = ('none', 'file', 'message')
 # The raw pair and the driver's pair_info (both acquisition stamps of each pair: the matcher's
@@ -208,9 +207,8 @@ def record_main(argv=None):
     rclpy.init(args=full)
     node = BagRecorder(args.output, args.topics, args.compression_mode)
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with until_shutdown():
+            rclpy.spin(node)
     finally:
         node.close()
         print(dict(node.counts))
@@ -242,23 +240,22 @@ def play_main(argv=None):
         return 2
     status = 0
     try:
-        for topic, reason in node.skipped:
-            print(f'bag_play: skipping {topic}: {reason}', file=sys.stderr)
-        if not node.publishers_by_id:
-            print(f'bag_play: {args.bag}: no topic can be played', file=sys.stderr)
-            return 1
-        time.sleep(max(0.0, args.delay))      # let subscribers discover the publishers
-        step = (lambda: sys.stdin.readline()) if args.step else None
-        count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s), step=step)
-        print(f'published {count} messages from {args.bag}')
-        expected = sum(c.msgcount for c in node.reader.connections
-                       if c.id in node.publishers_by_id)
-        if count == 0 and expected:
-            print(f'bag_play: {args.bag}: the metadata lists {expected} messages of the '
-                  f'playable topics but none could be read', file=sys.stderr)
-            status = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with until_shutdown():
+            for topic, reason in node.skipped:
+                print(f'bag_play: skipping {topic}: {reason}', file=sys.stderr)
+            if not node.publishers_by_id:
+                print(f'bag_play: {args.bag}: no topic can be played', file=sys.stderr)
+                return 1
+            time.sleep(max(0.0, args.delay))      # let subscribers discover the publishers
+            step = (lambda: sys.stdin.readline()) if args.step else None
+            count = node.play(spin=lambda s: rclpy.spin_once(node, timeout_sec=s), step=step)
+            print(f'published {count} messages from {args.bag}')
+            expected = sum(c.msgcount for c in node.reader.connections
+                           if c.id in node.publishers_by_id)
+            if count == 0 and expected:
+                print(f'bag_play: {args.bag}: the metadata lists {expected} messages of the '
+                      f'playable topics but none could be read', file=sys.stderr)
+                status = 1
     finally:
         node.close()
         node.destroy_node()

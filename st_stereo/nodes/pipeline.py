@@ -10,7 +10,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, PointCloud2
@@ -21,7 +21,7 @@ from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.people_messages import DETECTION_FIELDS
 from st_stereo.nodes.people_node import PeopleNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.nodes.runtime import with_default_namespace
+from st_stereo.nodes.runtime import until_shutdown, with_default_namespace
 
 
 def build_nodes(args=None):
@@ -110,9 +110,8 @@ def main(args=None):
     for node in nodes:
         executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with until_shutdown():
+            executor.spin()
     finally:
         for node in nodes:
             node.destroy_node()

@@ -4,6 +4,7 @@ The standard life of a node process: init, spin, clean shutdown on Ctrl-C or shu
 Also the QoS every publisher uses and the hand-over of work to a node's worker thread.
 """
 
+import contextlib
 import threading
 
 import rclpy
@@ -25,6 +26,26 @@ def with_default_namespace(kwargs):
     return kwargs
 
 
+@contextlib.contextmanager
+def until_shutdown(context=None):
+    """
+    Let a spin end quietly on Ctrl-C or an external shutdown.
+
+    rclpy's signal handler shuts the context down while the executor may be taking a message;
+    the take then fails with a RuntimeError (seen once in CI: "Unable to convert call argument
+    '0' to Python object", exit code 1 after a clean Ctrl-C). A RuntimeError once the context
+    is shut down is that shutdown; one while it is still up is raised. ``context``: the one
+    spun (rclpy's default one when None).
+    """
+    try:
+        yield
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError:
+        if rclpy.ok(context=context):
+            raise
+
+
 def spin_node(factory, args=None):
     """
     Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown.
@@ -44,9 +65,8 @@ def spin_node(factory, args=None):
         rclpy.try_shutdown()
         return 2
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with until_shutdown():
+            rclpy.spin(node)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
