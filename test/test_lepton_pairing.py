@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 from st_stereo.lepton.packets import UNIQUE_FRAME_PERIOD_S
-from st_stereo.lepton.pairing import PairSynchronizer
+from st_stereo.lepton.pairing import PairFfcFlags, PairSynchronizer
 
 
 @dataclasses.dataclass
@@ -107,3 +107,39 @@ def test_min_period_decides_pairs_without_waiting():
     sync = PairSynchronizer(max_delta=0.05, min_period=0.1)
     assert len(feed(sync, [0.452], [0.46])) == 1      # no frame can come within 0.1 s
     assert sync.counters.pairs == 1
+
+
+@dataclasses.dataclass
+class Frame:
+    stamp: float
+    ffc_in_progress: bool = False
+
+
+def test_ffc_frames_without_a_partner_flag_that_camera_in_the_next_pair():
+    # Right frames 0.15 and 0.26 announce an FFC; the left camera lost those instants (a
+    # resync), so neither is paired: the right camera's next pair says it was in FFC, the
+    # left camera's does not, and the pair after that is clean again.
+    sync, flags = PairSynchronizer(max_delta=0.05, min_period=0.1), PairFfcFlags()
+    left = [Frame(0.00), Frame(0.45), Frame(0.56), Frame(0.68)]
+    right = [Frame(0.01), Frame(0.15, True), Frame(0.26, True), Frame(0.46), Frame(0.57),
+             Frame(0.69)]
+    events = sorted([(f.stamp, 'left', f) for f in left] + [(f.stamp, 'right', f)
+                                                            for f in right])
+    got = []
+    for _, side, frame in events:
+        flags.seen(side, frame)
+        got += [(pair.right.stamp, flags.of_pair(pair)) for pair in sync.push(side, frame)]
+    assert got == [(0.01, (False, False)), (0.46, (False, True)), (0.57, (False, False)),
+                   (0.69, (False, False))]
+    assert sync.counters.dropped_right == 2
+
+
+def test_a_paired_ffc_frame_is_flagged_and_flags_nothing_after_it():
+    sync, flags = PairSynchronizer(max_delta=0.05, min_period=0.1), PairFfcFlags()
+    events = [('left', Frame(0.00, True)), ('right', Frame(0.01)), ('left', Frame(0.11)),
+              ('right', Frame(0.12)), ('left', Frame(0.22)), ('right', Frame(0.23))]
+    got = []
+    for side, frame in events:
+        flags.seen(side, frame)
+        got += [flags.of_pair(pair) for pair in sync.push(side, frame)]
+    assert got == [(True, False), (False, False), (False, False)]

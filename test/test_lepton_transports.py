@@ -168,3 +168,28 @@ def test_purethermal_reader_stamps_new_frames_and_counts_copies():
     with pytest.raises(purethermal.PureThermalError, match='no PureThermal board'):
         purethermal.PureThermalReader('PT-Z', 0, lambda dev: FakeCapture(frames),
                                       fake_find([FakeUsbDevice('PT-A')]))
+
+
+def test_purethermal_reader_flags_the_first_frame_after_a_frozen_ffc():
+    # A board sending unique frames: one announced "imminent", frozen copies of it while the
+    # FFC runs (not published), then a new frame with telemetry 'complete' whose level moved.
+    from st_stereo.lepton.telemetry import encode_telemetry_row_a
+
+    def frame(level, state, counter):
+        out = np.zeros((63, 80), np.uint16)
+        out[:60] = level + np.arange(80, dtype=np.uint16)
+        row_a = encode_telemetry_row_a(counter, ffc_state=state)
+        out[60] = np.frombuffer(row_a, dtype='>u2')
+        return out
+
+    frames = [frame(8000, 'complete', 0), frame(8010, 'imminent', 1),
+              frame(8010, 'in_progress', 2), frame(8010, 'in_progress', 3),
+              frame(8010, 'in_progress', 4), frame(8040, 'complete', 5),
+              frame(8050, 'complete', 6)]
+    reader = purethermal.PureThermalReader(
+        'PT-A', 0, capture_factory=lambda dev: FakeCapture(frames),
+        find=fake_find([FakeUsbDevice('PT-A')]))
+    got = [reader.read_frame() for _ in frames]
+    published = [(f.telemetry.frame_counter, f.ffc_in_progress) for f in got if f is not None]
+    assert published == [(0, False), (1, True), (5, True), (6, False)]
+    assert reader.counters.ffc_frames == 4

@@ -202,9 +202,9 @@ def run_pair(compensator, frames, result, skew_s, ffc=((False, False), (False, F
 
 
 def test_a_camera_in_ffc_is_not_tracked_and_the_other_one_serves(people_80x60):
-    # pair_info says a camera is in FFC (frozen or about to freeze): its previous frame is
-    # older than its stamp. A positive skew then falls back on the left camera (extrapolated,
-    # counted); with both cameras in FFC nothing is corrected (counted).
+    # pair_info says a camera is in or just out of FFC: its previous frame is frozen (older
+    # than its stamp) or at another level. A positive skew then falls back on the left camera
+    # (extrapolated, counted); with both cameras in FFC nothing is corrected (counted).
     skew_s = 0.04
     frames, result = moving_scene(people_80x60, skew_s)
     right_ffc = SkewCompensator()

@@ -228,10 +228,11 @@ class SkewCompensator:
     left camera's when it exposed first; each at most ``max_period_s`` older), corrects their
     disparities, re-triangulates, drops matches the correction takes outside the admissible
     disparities, and remembers the images. A camera in FFC (``ffc``, from ``pair_info``) in this
-    pair or the previous one is not tracked (its frames are frozen: a frozen frame is older than
-    its stamp); the other one serves, extrapolating. A pair whose stereo model is another object
-    than the previous pair's (a new calibration: the previous images were rectified
-    differently) is not corrected. Counts of every case accumulate in ``counts``.
+    pair or the previous one is not tracked (its frames are frozen, older than their stamp, or
+    the first after the freeze, at another level); the other one serves, extrapolating. A
+    pair whose stereo model is another object than the previous pair's (a new calibration: the
+    previous images were rectified differently) is not corrected. Counts of every case
+    accumulate in ``counts``.
     """
 
     def __init__(self, max_period_s=0.25):

@@ -159,6 +159,41 @@ class PairSynchronizer:
         return pairs
 
 
+class PairFfcFlags:
+    """
+    Whether each camera of a pair was in FFC, counting the frames the pairing dropped.
+
+    A Lepton announces an FFC on a few unique frames ("imminent") and then freezes. When
+    those frames find no partner (the other camera was resyncing, say) the first pair after
+    the FFC would say nothing, yet its image differs from the camera's last published one by
+    the FFC's offset. ``seen`` records, per side, the stamps of frames in FFC; ``of_pair``
+    flags a side when the pair's frame or any frame of that side since the previous pair was
+    in FFC. The driver notes every frame it reads, also those it
+    drops before the pairing (acquisition time unknown). Not seen: frames the driver's queue
+    dropped, an FFC while a stream reopens, and everything without telemetry.
+    """
+
+    def __init__(self, max_pending=16):
+        self._pending = {side: collections.deque(maxlen=max_pending)
+                         for side in ('left', 'right')}
+
+    def seen(self, side, frame):
+        """Note a frame the driver read (``ffc_in_progress`` and ``stamp`` are used)."""
+        if frame.ffc_in_progress:
+            self._pending[side].append(frame.stamp)
+
+    def of_pair(self, pair):
+        """Return (left, right): was that camera in FFC for this pair (see the class)."""
+        flags = []
+        for side, frame in (('left', pair.left), ('right', pair.right)):
+            pending = self._pending[side]
+            flags.append(bool(frame.ffc_in_progress) or
+                         any(stamp <= frame.stamp for stamp in pending))
+            while pending and pending[0] <= frame.stamp:
+                pending.popleft()
+        return tuple(flags)
+
+
 # --- pair_info: what a pair says about its two acquisitions -------------------------------------
 # The driver publishes them as the KeyValues of a diagnostic_msgs/DiagnosticArray on
 # ``pair_info`` (stamped with the pair's stamp); recordings carry the same topic, the matcher
@@ -192,8 +227,9 @@ def pair_ffc_from_values(values):
     """
     Return ``(left in FFC, right in FFC)`` from ``pair_info`` key -> value text.
 
-    A camera is in FFC when its telemetry said the correction is imminent or in progress (its
-    frames frozen or about to freeze); a missing key (an older recording) is taken as not.
+    A camera is flagged when its telemetry said the correction is imminent or in progress on
+    the pair's frame or on one since its previous pair (the first frame after a freeze is
+    flagged: its level moved); a missing key (an older recording) is taken as not.
     """
     return tuple(values.get(f'{side} ffc') == 'True' for side in ('left', 'right'))
 

@@ -189,8 +189,8 @@ class PureThermalReader:
         telemetry = None
         if rows is not None:
             telemetry = parse_telemetry_row_a(rows[0].astype('>u2').tobytes())
-        ffc = in_ffc(telemetry)
-        if not count_new_frame(self.duplicates, counters, pixels, ffc):
+        unique, ffc = count_new_frame(self.duplicates, counters, pixels, in_ffc(telemetry))
+        if not unique:
             return None
         # A board that sends every core frame (copies too): the stamp is the first copy's only
         # when the frame before it was read one core period earlier. A board that sends only

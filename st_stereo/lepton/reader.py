@@ -40,6 +40,8 @@ class LeptonFrame:
     stamp: float                # host time packet 0 of the frame was read, seconds
     index: int                  # unique frames emitted so far by this reader
     telemetry: object = None    # Telemetry or None
+    # The camera reported an FFC (imminent or running) on this frame or on a copy or frozen
+    # frame read since the previous unique frame.
     ffc_in_progress: bool = False
     segment: int = 0
     # True when ``stamp`` is the acquisition of the unique frame's first copy: the core frame
@@ -61,13 +63,17 @@ def in_ffc(telemetry):
 
 def count_new_frame(duplicates, counters, pixels, ffc):
     """
-    Count an assembled frame in ``counters`` (LeptonCounters) and say whether it is new.
+    Count an assembled frame in ``counters`` (LeptonCounters) and say whether to publish it.
 
     ``duplicates`` (a DuplicateFilter) tells a unique frame from a copy or an FFC freeze; each
     is counted (``unique_frames``, ``duplicates``, ``frozen``), and every frame the camera
-    reports in FFC in ``ffc_frames``. Returns True for a unique frame, the only kind published.
+    reports in FFC (``ffc``: its telemetry says imminent or in progress) in ``ffc_frames``.
+    Returns ``(unique, ffc)``: whether it is a unique frame, the only kind published, and for
+    one its FFC flag: its own ``ffc``, or that of a copy or frozen frame since the previous
+    unique one (the first frame after a freeze is flagged: its level moved).
     """
     counters.ffc_frames += bool(ffc)
+    duplicates.ffc_since_unique |= bool(ffc)
     kind = duplicates.classify(pixels)
     if kind == 'duplicate':
         counters.duplicates += 1
@@ -75,7 +81,9 @@ def count_new_frame(duplicates, counters, pixels, ffc):
         counters.frozen += 1
     else:
         counters.unique_frames += 1
-    return kind == 'unique'
+        flag, duplicates.ffc_since_unique = duplicates.ffc_since_unique, False
+        return True, flag
+    return False, False
 
 
 class DuplicateFilter:
@@ -94,6 +102,7 @@ class DuplicateFilter:
         self.copies = copies
         self._last_pixels = None
         self._run = 0
+        self.ffc_since_unique = False   # a frame in FFC since the last unique (count_new_frame)
 
     def classify(self, pixels, telemetry=None):
         """Return 'unique', 'duplicate' or 'frozen' (``telemetry`` is not used, see above)."""
@@ -221,8 +230,9 @@ class LeptonReader:
         telemetry = None
         if frame.telemetry_payloads:
             telemetry = parse_telemetry_row_a(frame.telemetry_payloads[0])
-        ffc = in_ffc(telemetry)
-        if not count_new_frame(self.duplicates, self.counters, frame.pixels, ffc):
+        unique, ffc = count_new_frame(self.duplicates, self.counters, frame.pixels,
+                                      in_ffc(telemetry))
+        if not unique:
             return None
         out = LeptonFrame(frame.pixels, frame.stamp, self._unique_index, telemetry, ffc,
                           frame.segment, first_copy_known(previous, frame.stamp,

@@ -37,7 +37,7 @@ from st_stereo.core.calibration.files import calibration_from_camera_info, \
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.cci import CciError
 from st_stereo.lepton.packets import UNIQUE_FRAME_HZ
-from st_stereo.lepton.pairing import pair_ffc_from_values, pair_info_values, \
+from st_stereo.lepton.pairing import pair_ffc_from_values, pair_info_values, PairFfcFlags, \
     PairSynchronizer, SKEW_KEY
 from st_stereo.lepton.purethermal import PureThermalError
 from st_stereo.lepton.reader import EndOfStream, LeptonReader
@@ -96,6 +96,7 @@ class DriverNode(Node):
                 SetCameraInfo, f'{side}/set_camera_info',
                 lambda request, response, i=index: self._set_camera_info(i, request, response))
         self.pairing = PairSynchronizer(self.max_delta, min_period=0.1)
+        self.pair_ffc = PairFfcFlags()      # an FFC on a frame not paired flags the next pair
         self.frequency = diagnostics.FrequencyTracker(UNIQUE_FRAME_HZ)
         self.camera_rates = [diagnostics.FrequencyTracker(UNIQUE_FRAME_HZ) for _ in SIDES]
         self.recent_skews = collections.deque(maxlen=256)
@@ -260,6 +261,7 @@ class DriverNode(Node):
             index = SIDES.index(side)
             self.camera_rates[index].tick(time.monotonic())
             self.last_telemetry[index] = frame.telemetry
+            self.pair_ffc.seen(side, frame)       # an FFC seen on a frame not paired counts
             if not frame.stamp_exact:
                 self.inexact_drops[index] += 1     # its acquisition time is not known
                 continue
@@ -298,6 +300,7 @@ class DriverNode(Node):
                     base = frame.stamp
                 if self.duration and frame.stamp - base > self.duration:
                     break
+                self.pair_ffc.seen(SIDES[side], frame)
                 if not frame.stamp_exact:
                     self.inexact_drops[side] += 1
                     continue
@@ -347,7 +350,7 @@ class DriverNode(Node):
             self.publish_wall_times.pop(next(iter(self.publish_wall_times)))
 
     def _publish_pair_info(self, pair, header, live, clock_start, base):
-        ffc = [bool(pair.left.ffc_in_progress), bool(pair.right.ffc_in_progress)]
+        ffc = list(self.pair_ffc.of_pair(pair))
         values = None
         if self.recorded_pair_info is not None:
             # A bag's pair: republish what the driver that recorded it said (its skew), or say
@@ -363,7 +366,7 @@ class DriverNode(Node):
                 [pair.left.index, pair.right.index], ffc)
         self.ffc_pairs += any(ffc)
         level = diagnostics.WARN if any(ffc) else diagnostics.OK
-        message = 'a camera is in FFC (frozen or about to freeze)' if any(ffc) else 'ok'
+        message = 'a camera is in or just out of FFC' if any(ffc) else 'ok'
         array = DiagnosticArray(header=header)
         array.status = [diagnostics.status(f'{self.get_name()}: stereo pair', self.source,
                                            level, message, values)]
