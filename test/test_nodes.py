@@ -231,6 +231,47 @@ def test_driver_replays_plain_byte_captures_in_the_mode_their_data_show(ros, tmp
     assert all(p in sent for p in pixels)
 
 
+@pytest.mark.timeout(180)
+def test_driver_flags_every_pair_whose_image_an_ffc_moved(ros, tmp_path, monkeypatch):
+    # Captures of two cameras: the right one runs FFCs (frozen frames, then its level jumps
+    # by 25 counts), the left one has CRC errors, and the driver drops a frame whose
+    # acquisition time is then unknown: 7 of the right camera's 11 FFC-flagged frames find no
+    # partner (without the driver's PairFfcFlags the second FFC's pair goes out unflagged).
+    # Whatever was paired, a published right image whose level moved from the previous
+    # published one must come with 'right ffc' True in pair_info (the skew compensation must
+    # not compare the two). Recorded at the publish call: no DDS queue can lose a message.
+    from rclpy.publisher import Publisher
+    from st_stereo.lepton.cli import simulate_capture
+    from st_stereo.lepton.simulator import FaultPlan
+    paths = [tmp_path / 'left.bin', tmp_path / 'right.bin']
+    simulate_capture(paths[0], 20.0, 'footer', FaultPlan({'crc': 0.2}), seed=1)
+    simulate_capture(paths[1], 20.0, 'footer', FaultPlan({'ffc_freeze': 0.1}), seed=2)
+    published = []
+    publish = Publisher.publish
+
+    def record(self, msg):
+        published.append((self.topic_name, msg))
+        return publish(self, msg)
+    monkeypatch.setattr(Publisher, 'publish', record)
+    context, executor, add = ros
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('source', value='capture'), Parameter('left_capture', value=str(paths[0])),
+        Parameter('right_capture', value=str(paths[1]))]))
+    spin_until(executor, driver.finished.is_set, 90.0)
+
+    def stamp(msg):
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    levels = {stamp(msg): np.frombuffer(bytes(msg.data), '<u2').mean()
+              for topic, msg in published if topic.endswith('right/image_raw')}
+    flags = {stamp(msg): {kv.key: kv.value for kv in msg.status[0].values}['right ffc']
+             for topic, msg in published if topic.endswith('/pair_info')}
+    assert len(levels) > 40 and set(levels) == set(flags)
+    order = sorted(levels)
+    moved = [b for a, b in zip(order, order[1:]) if abs(levels[b] - levels[a]) > 12.0]
+    assert moved, 'no FFC moved a published image: the case tests nothing'
+    assert [flags[s] for s in moved] == ['True'] * len(moved)
+
+
 def _textured_pair(stamp_sec):
     rng = np.random.default_rng(stamp_sec)
     texture = 7800 + 400 * rng.random((60, 80))
