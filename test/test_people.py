@@ -6,14 +6,16 @@ detector on synthetic point sets with known people, the tracker on scripted walk
 scoring against motmetrics on hand-made tracks.
 """
 
+import dataclasses
 import math
 import pathlib
 import types
 
 import numpy as np
 import pytest
-from st_stereo.core.people import (detect_people, Detection, PeopleConfig, PeopleTracker,
-                                   rectified_to_world, WarmBackground, world_from_rectified)
+from st_stereo.core.people import (detect_people, Detection, legs_fraction, PeopleConfig,
+                                   PeopleTracker, rectified_to_world, WarmBackground,
+                                   world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
 from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
@@ -44,6 +46,8 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('gate_m', -1.0, 'gate_m: expected a number > 0'),
     ('publish_coast_s', 9.0, 'publish_coast_s: expected 0 .. max_coast_s'),
     ('min_confidence', 1.5, 'min_confidence: expected 0..1'),
+    ('legs_min_fraction', -0.1, 'legs_min_fraction: expected 0..1'),
+    ('legs_occluded_m', 0.0, 'legs_occluded_m: expected a number > 0'),
 ])
 def test_a_bad_people_parameter_names_itself(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -105,6 +109,73 @@ def test_a_body_cut_by_the_top_edge_is_kept_and_marked():
     assert without_edge == []                     # too low for a whole person
     cut = detect_people(points, CAMERA, pixels=pixels, image_shape=(60, 80))
     assert len(cut) == 1 and cut[0].cut_top and not cut[0].head_visible
+
+
+def _painted(rig, surfaces, shape=(60, 80)):
+    """
+    Warm mask and matched points of world surface samples, by the simulator's camera model.
+
+    ``surfaces``: (n, 3) world points; each lands on its rectified left pixel (the rig's true
+    rectified projection P1), which becomes warm and holds a match at its true depth.
+    """
+    p1 = rig.rectification()[2]
+    camera = rig.to_rectified_left(surfaces)
+    u = p1[0, 0] * camera[:, 0] / camera[:, 2] + p1[0, 2]
+    v = p1[1, 1] * camera[:, 1] / camera[:, 2] + p1[1, 2]
+    inside = (np.rint(u) >= 0) & (np.rint(u) < shape[1]) & (np.rint(v) >= 0) & \
+        (np.rint(v) < shape[0])
+    warm = np.zeros(shape, dtype=bool)
+    warm[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)] = True
+    return warm, camera[inside], np.column_stack([u, v])[inside]
+
+
+def _legs(x, y, top=0.85):
+    """World samples of two legs 0.18 m apart, from the floor up to ``top``."""
+    heights = np.linspace(0.0, top, 60)
+    return np.vstack([np.column_stack([np.full(60, x + dx), np.full(60, y), heights])
+                      for dx in (-0.09, -0.05, 0.05, 0.09)])
+
+
+def test_legs_are_seen_under_a_cut_body_not_under_a_screen_nor_behind_a_nearer_body():
+    rig = standard_sequences()['walk_across'].rig
+    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
+    p1 = rig.rectification()[2]
+    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    legs = _legs(-1.0, 4.3)
+    screen = np.array([[x, 4.5, z] for x in np.linspace(1.05, 1.65, 30)
+                       for z in np.linspace(0.78, 1.15, 20)])
+    warm, points, pixels = _painted(rig, np.vstack([legs, screen]))
+    assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, points, pixels) >= 0.9
+    # 0.15 m off (a cut body's position error) still finds the legs.
+    assert legs_fraction(warm, (-0.88, 4.4), transform, intrinsics, points, pixels) >= 0.5
+    # Under the screen: the cool desk.
+    assert legs_fraction(warm, (1.35, 4.5), transform, intrinsics, points, pixels) == 0.0
+    # The same warm legs, but their matches 1.5 m nearer: a body in front, not these legs.
+    nearer = points * (1.0 - 1.5 / np.linalg.norm(points, axis=1))[:, None]
+    assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, nearer, pixels) == 0.0
+    # Warm pixels without a single match on them are no evidence.
+    assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, points[:0],
+                         pixels[:0]) == 0.0
+    # Under the image (behind the rig) there is nothing to see.
+    assert math.isnan(legs_fraction(warm, (0.0, -1.0), transform, intrinsics, points,
+                                    pixels))
+
+
+def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
+    tracker = PeopleTracker()
+    person = [Detection(-1.0, 4.3 - 0.1 * i, 0.95, 20, 1.0, np.eye(2) * 1e-3,
+                        head_visible=False, cut_top=True, legs_seen=True) for i in range(3)]
+    screen = Detection(1.3, 4.5, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    published = [tracker.update([p, screen], t) for t, p in zip((0.0, 0.115, 0.23), person)]
+    assert [len(tracks) for tracks in published] == [0, 1, 1]
+    assert all(t.state[0] == pytest.approx(-1.0, abs=0.05) for t in published[-1])
+    # A passer-by's legs under the screen for one pair do not make it a person.
+    lent = dataclasses.replace(screen, legs_seen=True)
+    for t in np.arange(0.345, 3.0, 0.115):
+        tracks = tracker.update([lent if t < 0.4 else screen], t)
+        assert all(track.state[0] < 0 for track in tracks), t
+    assert tracker.counts['started'] == 1
 
 
 def test_the_warm_background_sees_a_person_there_from_the_first_frame_and_ignores_an_ffc():
@@ -350,3 +421,17 @@ def test_a_track_is_not_confirmed_by_where_it_is_predicted_to_go():
     for t in np.arange(0.345, 1.4, 0.115):                  # coasting on at 3.5 m/s
         assert tracker.update([], t) == []
     assert tracker.counts['started'] == 0 and tracker.next_id == 1
+
+
+def test_a_far_person_cut_by_the_top_edge_is_found_in_rendered_frames_from_the_second_pair():
+    from st_stereo.sim.sequences import load_textures
+    from st_stereo.tools.eval_people import evaluate_sequence
+    # sit_down starts with its person 4.6 m away, the head above the image, a warm screen
+    # cut by the top edge too (the simulator renders both cameras, ST matches them).
+    spec, textures = standard_sequences()['sit_down'], load_textures()
+    found = evaluate_sequence(spec, textures=textures, max_pairs=10)
+    assert found.truths == 10
+    assert found.hits >= 8 and found.estimates == found.hits
+    without_legs = evaluate_sequence(spec, textures=textures, max_pairs=10,
+                                     people_config=PeopleConfig(legs_min_fraction=0.0))
+    assert without_legs.estimates == 0            # must walk min_travel_m first

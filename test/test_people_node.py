@@ -224,3 +224,37 @@ def test_a_camera_info_without_a_projection_is_rejected_and_named(ros):
     assert node.camera_info is None and 'R: not a rotation matrix' in node.last_error
     feed(node, *pair_messages(1, person_in_rectified_frame(0.2, 2.0, 1)))
     assert node.counts['waiting_for_camera_info'] == 1
+
+
+def far_body_in_rectified_frame(x, y, seed, lowest=0.0):
+    """Return a standing person's front from ``lowest`` up, as much as the image shows."""
+    rng = np.random.default_rng(seed)
+    heights = rng.uniform(lowest, 1.75, 400)
+    angle = rng.uniform(-1.0, 1.0, 400) - np.pi / 2
+    world = np.column_stack([x + 0.12 * np.cos(angle), y + 0.12 * np.sin(angle), heights])
+    points = RIG.to_rectified_left(world)
+    p = LEFT.projection
+    u, v = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
+    return points[(u >= 0) & (u <= 79) & (v >= 0) & (v <= 59)]
+
+
+@pytest.mark.parametrize('lowest, published', [(0.0, True), (0.7, False)])
+def test_a_far_body_cut_by_the_top_edge_is_a_person_on_its_legs_and_not_without(
+        ros, lowest, published):
+    executor, collector, node = connected_people_node(ros)
+    # 4.6 m away: the head is above the image (only what is below about 1.1 m shows).
+    for sec in range(1, 5):
+        feed(node, *pair_messages(sec, far_body_in_rectified_frame(-1.0, 4.6, sec, lowest)))
+    spin_until(executor, lambda: len(collector.clouds) >= 4, 10.0)
+    counts = [point_cloud_fields(c, ('x',))['x'].size for c in collector.clouds]
+    tracks = node.estimator.tracker.tracks
+    assert tracks and all(track.cut_top for track in tracks)
+    if published:                                  # from the second pair (min_hits 2)
+        assert counts == [0, 1, 1, 1]
+        last = point_cloud_fields(collector.clouds[-1], DETECTION_FIELDS)
+        assert last['head_visible'][0] == 0.0
+        assert (last['x'][0], last['y'][0]) == pytest.approx((-1.0, 4.6), abs=0.3)
+        assert node.estimator.counts['cut_legs_seen'] == 4
+    else:                                          # a warm slab on a desk looks the same
+        assert counts == [0, 0, 0, 0]
+        assert node.estimator.counts['cut_legs_seen'] == 0

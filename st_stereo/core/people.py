@@ -17,6 +17,9 @@ The stages, each a pure function or a small state machine fed one pair at a time
    less the head's half-height, its position covariance the spread of those points over their
    number plus the depth uncertainty of a point along the horizontal viewing direction
    (``sigma_Z = Z sigma_d / d``: from ``Z = f B / d``, ``dZ / dd = -Z / d``).
+   A body cut by the image's top edge (far off, the head above the image) looks like a warm
+   screen on a desk; ``legs_fraction`` tells them apart by what stands below it: warm legs
+   at the body's depth (matched points on them) or a cool desk.
 4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
    assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
    never repeat, a track confirmed after ``min_hits`` detections, kept without detections for
@@ -85,8 +88,16 @@ class PeopleConfig:
     min_hits: int = _field(
         2, 'detections before a track is published')
     min_travel_m: float = _field(
-        1.0, 'a track never seen with its head (cut by the top edge, like a warm screen) is '
-        'published only after moving this far, m')
+        1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
+        'seen: like a warm screen) is published only after moving this far, m')
+    legs_min_fraction: float = _field(
+        0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
+        'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
+        'the floor at its position) hold warm pixels with matches at their depth, in min_hits '
+        'of its detections; 0: never (needs the camera matrix)')
+    legs_occluded_m: float = _field(
+        0.6, 'a row of those legs shows them only if its warm pixels hold matched points not '
+        'nearer than the legs by more than this (else something in front of them), m')
     reacquire_cut_s: float = _field(
         0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
     max_range_m: float = _field(
@@ -114,6 +125,12 @@ class PeopleConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f'people.{name}: expected an integer >= 1, got {value!r}')
+        if not 0.0 <= self.legs_min_fraction <= 1.0:
+            raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
+                             f'{self.legs_min_fraction!r}')
+        if not (math.isfinite(self.legs_occluded_m) and self.legs_occluded_m > 0):
+            raise ValueError(f'people.legs_occluded_m: expected a number > 0, got '
+                             f'{self.legs_occluded_m!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
 
@@ -177,7 +194,9 @@ class Detection:
 
     ``head_visible`` False: the body is cut by the image's edge (the head may be outside it,
     ``head_height`` then only a lower bound). ``cut_top``: cut by the top edge (far off, what
-    is seen is the front of the body below the head, as of a warm screen). ``depth_spread_m``:
+    is seen is the front of the body below the head, as of a warm screen). ``legs_seen``: cut
+    by the top edge and standing on the floor, its legs warm in the image (``legs_fraction``),
+    so a person by itself, not a warm object on a desk. ``depth_spread_m``:
     the standard deviation of the points' camera depth Z (the paper's measure of a matcher on
     a standing person).
     """
@@ -192,6 +211,7 @@ class Detection:
     cut_top: bool = False
     depth_spread_m: float = 0.0
     members: np.ndarray = None    # indices of its points in the points given to detect_people
+    legs_seen: bool = False
 
 
 class WarmBackground:
@@ -271,6 +291,56 @@ def project_to_pixels(points, fx, fy, cx, cy):
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     z = np.where(points[:, 2] > 0, points[:, 2], np.nan)
     return fx * points[:, 0] / z + cx, fy * points[:, 1] / z + cy
+
+
+LEGS_HEIGHTS_M = (0.1, 0.5)      # the legs' segment above the floor that legs_fraction looks at
+
+
+def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=None):
+    """
+    Fraction of the image rows of a standing body's legs that show warm legs at their depth.
+
+    The segment ``LEGS_HEIGHTS_M`` above the floor at ``floor_xy`` (world frame) goes into
+    the rectified left frame (``p = R^T (p_world - t)``, the inverse of ``transform``) and
+    onto the image (``u = fx X / Z + cx``, ``v = fy Y / Z + cy``). A row it crosses shows
+    legs when a pixel of ``warm`` lies within ``person_radius_m / 2`` of the segment
+    (horizontally, at the segment's depth: two legs, or a position a little off) and the
+    matched ``points`` (rectified left frame, n x 3, at left ``pixels`` n x 2) on warm pixels
+    of that window, within one row of it, exist and are not nearer than the segment by more
+    than ``legs_occluded_m`` (their median). Warm pixels without a matched point there are no
+    evidence: a nearer warm body (a person seated in front of a screen) covers the rows under
+    a far object as well as legs would. A warm object on a desk has the cool desk below it; a
+    person cut by the image's top edge stands on warm legs.
+
+    Returns NaN when no row of the segment is in the image (or it is behind the camera).
+    """
+    config = config or PeopleConfig()
+    rotation, translation = transform
+    fx, fy, cx, cy = intrinsics
+    heights = np.linspace(*LEGS_HEIGHTS_M, 17)
+    world = np.column_stack([np.full(17, floor_xy[0]), np.full(17, floor_xy[1]), heights])
+    camera = (world - translation) @ rotation
+    camera = camera[camera[:, 2] > 0]
+    rows = np.rint(fy * camera[:, 1] / camera[:, 2] + cy).astype(int)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    point_rows, point_cols, inside = pixel_indices(warm.shape, *np.asarray(pixels).T)
+    on_warm = inside & warm[point_rows, point_cols]
+    shown = total = 0
+    for row in np.unique(rows):
+        if not 0 <= row < warm.shape[0]:
+            continue
+        total += 1
+        at = camera[rows == row].mean(axis=0)
+        u = fx * at[0] / at[2] + cx
+        half = config.person_radius_m / 2 * fx / at[2]
+        low, high = max(0, int(np.ceil(u - half))), min(warm.shape[1] - 1, int(u + half))
+        if high < low or not warm[row, low:high + 1].any():
+            continue
+        here = on_warm & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
+            (point_cols <= high)
+        if here.any() and np.median(points[here, 2]) >= at[2] - config.legs_occluded_m:
+            shown += 1
+    return shown / total if total else float('nan')
 
 
 def occupancy_peaks(xy, config):
@@ -416,8 +486,9 @@ class Track:
     last_seen_s: float
     head_visible: bool = True
     updated: bool = True
-    seen_head: bool = False       # any detection showing a head (PeopleTracker._shows_head)
-    confirmed: bool = False       # published (min_hits, and a head seen or min_travel_m)
+    seen_as_person: bool = False  # head seen once, or legs under a cut body min_hits times
+    legs_hits: int = 0            # detections cut by the top edge, standing on legs
+    confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
     depth_spread_m: float = float('nan')   # the last detection's depth spread
     detection: Detection = None   # the last detection it took
@@ -481,7 +552,8 @@ class PeopleTracker:
             # A head cut off by the image's edge keeps the height last seen whole.
             track.head_height = detection.head_height
             track.head_visible = detection.head_visible
-        track.seen_head = track.seen_head or self._shows_head(detection)
+        track.legs_hits += int(detection.legs_seen)
+        track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
         track.cut_top = detection.cut_top
         track.detection = detection
         track.depth_spread_m = detection.depth_spread_m
@@ -490,10 +562,19 @@ class PeopleTracker:
         track.hits += 1
         track.updated = True
 
-    def _shows_head(self, detection):
-        """Whether a detection is a person by itself: not cut by the top edge, head high."""
-        return not detection.cut_top and \
-            detection.head_height >= self.config.min_head_height_m
+    def _is_person(self, track, detection):
+        """
+        Whether a track, with this detection, has shown a person, not possibly a warm object.
+
+        A detection not cut by the top edge with its head high enough does by itself; a body
+        cut by the top edge (a warm screen looks the same) does when ``min_hits`` of the
+        track's detections stood on warm legs (``legs_seen``): a passer-by's legs in front
+        of a screen lent it legs for one pair on the bundled recording, which alone does not
+        make it a person.
+        """
+        if detection.cut_top:
+            return track.legs_hits >= self.config.min_hits
+        return detection.head_height >= self.config.min_head_height_m
 
     def gate(self, track):
         """
@@ -533,12 +614,13 @@ class PeopleTracker:
                                              t.state[1] - detections[i].y) for i in free]
                                  for t in group])
             gate = np.array([self.gate(t) for t in group])[:, None]
-            # A body cut off by the image's edge (a warm screen looks the same) is weak
-            # evidence: it continues a track only within ``gate_m`` of the prediction and
-            # when the track was seen within ``reacquire_cut_s``.
+            # A body cut off by the image's edge (a warm screen looks the same) without its
+            # legs seen is weak evidence: it continues a track only within ``gate_m`` of the
+            # prediction and when the track was seen within ``reacquire_cut_s``.
             lost = np.array([stamp_s - t.last_seen_s > self.config.reacquire_cut_s
                              for t in group])[:, None]
-            cut = np.array([detections[i].cut_top for i in free])[None, :]
+            cut = np.array([detections[i].cut_top and not detections[i].legs_seen
+                            for i in free])[None, :]
             distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
                                 distance)
             cost = np.where(distance <= gate, distance, 1e6)
@@ -558,10 +640,11 @@ class PeopleTracker:
             self.tracks.append(Track(0, np.array([detection.x, detection.y, 0, 0]),
                                      covariance, detection.head_height, detection.confidence,
                                      detection.points, 1, stamp_s, detection.head_visible,
-                                     seen_head=self._shows_head(detection),
                                      cut_top=detection.cut_top,
                                      depth_spread_m=detection.depth_spread_m,
-                                     detection=detection))
+                                     detection=detection,
+                                     legs_hits=int(detection.legs_seen)))
+            self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
             if stamp_s - track.last_seen_s > self.config.max_coast_s:
@@ -576,7 +659,7 @@ class PeopleTracker:
         for track in self.tracks:
             if not track.confirmed and track.updated and \
                     track.hits >= self.config.min_hits and \
-                    (track.seen_head or track.travel_m >= self.config.min_travel_m):
+                    (track.seen_as_person or track.travel_m >= self.config.min_travel_m):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
                 track.confirmed = True
@@ -618,11 +701,19 @@ class PeopleEstimator:
         self.tracker = PeopleTracker(self.config)
         self.protect = None
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
-                       'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0}
+                       'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0,
+                       'cut_legs_seen': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
-                left_image=None, image_shape=None):
-        """Return the PeopleFrame of one pair (see the class docstring)."""
+                left_image=None, image_shape=None, intrinsics=None):
+        """
+        Return the PeopleFrame of one pair (see the class docstring).
+
+        ``intrinsics``: ``(fx, fy, cx, cy)`` of the rectified left image (camera_info ``P``);
+        with it and ``left_image``, a body cut by the image's top edge whose legs show warm
+        (``legs_fraction``) counts as a person at once (``cut_legs_seen``); without, such a
+        body must move ``min_travel_m`` first.
+        """
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         x_left = np.asarray(x_left, dtype=np.float64).reshape(-1)
@@ -633,6 +724,7 @@ class PeopleEstimator:
         if image_shape is None and left_image is not None:
             image_shape = np.shape(left_image)
         keep = np.ones(len(points), dtype=bool)
+        warm = None
         if left_image is not None:
             warm = self.background.update(left_image, stamp_s, self.protect)
             if self.config.require_warm:
@@ -652,9 +744,35 @@ class PeopleEstimator:
             points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
             self.config, np.column_stack([x_left, y])[keep], image_shape)
         self.counts['detections'] += len(detections)
+        if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
+            detections = self._with_legs(detections, warm, intrinsics, points[keep],
+                                         np.column_stack([x_left, y])[keep])
         tracks = self.tracker.update(detections, stamp_s)
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
+
+    def _with_legs(self, detections, warm, intrinsics, points, pixels):
+        """
+        Return the detections, those cut by the top edge on warm legs marked ``legs_seen``.
+
+        Strongest first: a cut body's points often make two peaks up to 0.6 m apart (depth
+        noise, arms), whose leg windows each hold one leg, so a detection within twice
+        ``person_radius_m`` of a stronger one standing on legs is that body's fragment, left
+        weak (cut, no legs).
+        """
+        standing, out = [], []
+        for detection in detections:
+            if detection.cut_top and not any(
+                    math.hypot(detection.x - x, detection.y - y) < 2 * self.config.person_radius_m
+                    for x, y in standing):
+                fraction = legs_fraction(warm, (detection.x, detection.y), self.transform,
+                                         intrinsics, points, pixels, self.config)
+                if fraction >= self.config.legs_min_fraction:
+                    self.counts['cut_legs_seen'] += 1
+                    standing.append((detection.x, detection.y))
+                    detection = dataclasses.replace(detection, legs_seen=True)
+            out.append(detection)
+        return out
 
     @staticmethod
     def _people_pixels(tracks, used, x_left, y, image_shape):

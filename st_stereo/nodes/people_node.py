@@ -196,7 +196,7 @@ class PeopleNode(Node):
             stamp_s, points, x_left, y,
             None if fields['disparity'] is None else fields['disparity'][finite],
             None if fields['confidence'] is None else fields['confidence'][finite],
-            image, shape)
+            image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]))
         header = Header(stamp=points_msg.header.stamp, frame_id=self.pose.world_frame)
         self.poses_pub.publish(people_messages.poses_msg(header, frame.tracks))
         self.detections_pub.publish(people_messages.detections_cloud(header, frame.tracks))

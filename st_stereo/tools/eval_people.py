@@ -152,8 +152,10 @@ class PeopleScoring:
         result = self.matching.match(left_raw, right_raw, t_left, t_right - t_left)
         left = self.rectifier.rectify(left_raw, left_raw)[0]
         start = time.perf_counter()
+        model = self.rectifier.model
         people = self.estimator.process(t_left, result.points, result.x_left, result.y,
-                                        result.disparity, result.confidence, left)
+                                        result.disparity, result.confidence, left,
+                                        intrinsics=(model.fx, model.fy, model.cx, model.cy))
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
         visible = visible_people(labels, len(heads_world))
         head_seen = heads_in_image(heads_rectified, self.rectifier.model, left.shape)
