@@ -45,6 +45,7 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('min_points', 0, 'min_points: expected an integer >= 1'),
     ('gate_m', -1.0, 'gate_m: expected a number > 0'),
     ('publish_coast_s', 9.0, 'publish_coast_s: expected 0 .. max_coast_s'),
+    ('unconfirmed_coast_s', -1.0, 'unconfirmed_coast_s: expected 0 .. max_coast_s'),
     ('min_confidence', 1.5, 'min_confidence: expected 0..1'),
     ('legs_min_fraction', -0.1, 'legs_min_fraction: expected 0..1'),
     ('legs_occluded_m', 0.0, 'legs_occluded_m: expected a number > 0'),
@@ -248,6 +249,25 @@ def test_a_static_warm_object_cut_by_the_top_edge_is_never_a_person():
                        cut_top=True)
     for t in np.arange(0, 5, 0.115):
         assert tracker.update([screen], t) == []
+    assert tracker.counts['started'] == 0
+
+
+def test_an_unconfirmed_track_does_not_coast_on_to_take_a_stray_detection():
+    # walk_across: a screen fragment's unconfirmed track took a passer-by's detection, coasted
+    # across the room with that velocity for 1.3 s with a growing gate, took a ghost (the
+    # walker's lower body, head 1.0 m) 0.9 m from its prediction and was published with it.
+    tracker = PeopleTracker()
+    screen = Detection(1.1, 4.6, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    times = np.arange(0, 4.6, 0.115)
+    for t in times[times < 3.5]:
+        assert tracker.update([screen], t) == []
+    kicked = dataclasses.replace(screen, x=1.0, y=4.3)     # a passer-by in front of it
+    assert tracker.update([kicked], 3.5) == []
+    for t in times[(times > 3.5) & (times < 4.5)]:
+        assert tracker.update([], t) == []
+    ghost = Detection(0.55, 3.0, 1.0, 23, 1.0, np.eye(2) * 1e-3)
+    assert tracker.update([ghost], 4.6) == []
     assert tracker.counts['started'] == 0
 
 

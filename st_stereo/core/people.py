@@ -23,7 +23,8 @@ The stages, each a pure function or a small state machine fed one pair at a time
 4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
    assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
    never repeat, a track confirmed after ``min_hits`` detections, kept without detections for
-   ``max_coast_s`` (short occlusions) and then ended.
+   ``max_coast_s`` (short occlusions) and then ended; one not confirmed yet ends after
+   ``unconfirmed_coast_s`` without detections.
 """
 
 import dataclasses
@@ -85,6 +86,9 @@ class PeopleConfig:
         1.5, 'a track without detections ends after this, s')
     publish_coast_s: float = _field(
         0.3, 'a track without detections is published for this long (kept to max_coast_s), s')
+    unconfirmed_coast_s: float = _field(
+        0.3, 'a track not yet published ends after this long without detections (its gate '
+        'grows while it coasts: it would take a stray detection metres away), s')
     min_hits: int = _field(
         2, 'detections before a track is published')
     min_travel_m: float = _field(
@@ -110,9 +114,10 @@ class PeopleConfig:
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
                     'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma',
                     'max_range_m')
-        if not 0.0 <= self.publish_coast_s <= self.max_coast_s:
-            raise ValueError(f'people.publish_coast_s: expected 0 .. max_coast_s '
-                             f'({self.max_coast_s!r}), got {self.publish_coast_s!r}')
+        for name in ('publish_coast_s', 'unconfirmed_coast_s'):
+            if not 0.0 <= getattr(self, name) <= self.max_coast_s:
+                raise ValueError(f'people.{name}: expected 0 .. max_coast_s '
+                                 f'({self.max_coast_s!r}), got {getattr(self, name)!r}')
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -647,7 +652,9 @@ class PeopleTracker:
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
-            if stamp_s - track.last_seen_s > self.config.max_coast_s:
+            coast = self.config.max_coast_s if track.confirmed else \
+                self.config.unconfirmed_coast_s
+            if stamp_s - track.last_seen_s > coast:
                 if track.confirmed:
                     self.ended.append(track.track_id)
                     self.counts['ended'] += 1
