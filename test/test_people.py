@@ -14,8 +14,8 @@ import types
 import numpy as np
 import pytest
 from st_stereo.core.people import (detect_people, Detection, legs_fraction, PeopleConfig,
-                                   PeopleTracker, rectified_to_world, WarmBackground,
-                                   world_from_rectified)
+                                   PeopleTracker, rectified_to_world, standing_on_legs,
+                                   warm_column_gap_m, WarmBackground, world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
 from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
@@ -48,7 +48,8 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('unconfirmed_coast_s', -1.0, 'unconfirmed_coast_s: expected 0 .. max_coast_s'),
     ('min_confidence', 1.5, 'min_confidence: expected 0..1'),
     ('legs_min_fraction', -0.1, 'legs_min_fraction: expected 0..1'),
-    ('legs_occluded_m', 0.0, 'legs_occluded_m: expected a number > 0'),
+    ('legs_depth_tolerance_m', 0.0, 'legs_depth_tolerance_m: expected a number > 0'),
+    ('legs_max_gap_m', -1.0, 'legs_max_gap_m: expected a number > 0'),
 ])
 def test_a_bad_people_parameter_names_itself(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -147,19 +148,49 @@ def test_legs_are_seen_under_a_cut_body_not_under_a_screen_nor_behind_a_nearer_b
                        for z in np.linspace(0.78, 1.15, 20)])
     warm, points, pixels = _painted(rig, np.vstack([legs, screen]))
     assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, points, pixels) >= 0.9
-    # 0.15 m off (a cut body's position error) still finds the legs.
+    # 0.15 m off (a cut body's position error) still finds the legs; 0.5 m aside does not.
     assert legs_fraction(warm, (-0.88, 4.4), transform, intrinsics, points, pixels) >= 0.5
+    assert legs_fraction(warm, (-0.5, 4.3), transform, intrinsics, points, pixels) == 0.0
     # Under the screen: the cool desk.
     assert legs_fraction(warm, (1.35, 4.5), transform, intrinsics, points, pixels) == 0.0
-    # The same warm legs, but their matches 1.5 m nearer: a body in front, not these legs.
-    nearer = points * (1.0 - 1.5 / np.linalg.norm(points, axis=1))[:, None]
-    assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, nearer, pixels) == 0.0
+    # The same warm legs, but their matches 1.5 m nearer: a body in front, not these legs;
+    # or 1 m farther: something behind.
+    for shift in (-1.5, 1.0):
+        moved = points * (1.0 + shift / np.linalg.norm(points, axis=1))[:, None]
+        assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, moved, pixels) == 0.0
     # Warm pixels without a single match on them are no evidence.
     assert legs_fraction(warm, (-1.0, 4.3), transform, intrinsics, points[:0],
                          pixels[:0]) == 0.0
     # Under the image (behind the rig) there is nothing to see.
     assert math.isnan(legs_fraction(warm, (0.0, -1.0), transform, intrinsics, points,
                                     pixels))
+
+
+def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
+    rig = standard_sequences()['walk_across'].rig
+    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
+    p1 = rig.rectification()[2]
+    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    # A computer on the floor under a desk (top 0.70-0.74 m, cool) with a screen on it, both
+    # warm and 4.5-4.8 m away; the same place once more with a person standing there.
+    computer = np.array([[x, y, z] for x in np.linspace(1.3, 1.5, 8)
+                         for y in (4.45,) for z in np.linspace(0.0, 0.45, 30)])
+    screen = np.array([[x, 4.75, z] for x in np.linspace(1.1, 1.7, 30)
+                       for z in np.linspace(0.78, 1.15, 20)])
+    desk_warm, points, pixels = _painted(rig, np.vstack([computer, screen]))
+    body = _legs(1.4, 4.55, top=1.1)
+    body_warm, body_points, body_pixels = _painted(rig, body)
+    assert legs_fraction(desk_warm, (1.4, 4.55), transform, intrinsics, points, pixels) >= 0.5
+    assert warm_column_gap_m(desk_warm, (1.4, 4.55), transform, intrinsics) > 0.25
+    assert warm_column_gap_m(body_warm, (1.4, 4.55), transform, intrinsics) <= 0.05
+    cut = Detection(1.4, 4.55, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                    cut_top=True)
+    counts = {}
+    assert not standing_on_legs([cut], desk_warm, transform, intrinsics, points, pixels,
+                                counts=counts)[0].legs_seen
+    assert counts['cut_legs_gap'] == 1
+    assert standing_on_legs([cut], body_warm, transform, intrinsics, body_points,
+                            body_pixels)[0].legs_seen
 
 
 def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
@@ -171,12 +202,35 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
     published = [tracker.update([p, screen], t) for t, p in zip((0.0, 0.115, 0.23), person)]
     assert [len(tracks) for tracks in published] == [0, 1, 1]
     assert all(t.state[0] == pytest.approx(-1.0, abs=0.05) for t in published[-1])
-    # A passer-by's legs under the screen for one pair do not make it a person.
+    # Passers-by lending the screen legs for one pair, now and then, do not make it a person.
     lent = dataclasses.replace(screen, legs_seen=True)
-    for t in np.arange(0.345, 3.0, 0.115):
-        tracks = tracker.update([lent if t < 0.4 else screen], t)
+    for index, t in enumerate(np.arange(0.345, 6.0, 0.115)):
+        tracks = tracker.update([lent if index % 5 == 0 else screen], t)
         assert all(track.state[0] < 0 for track in tracks), t
     assert tracker.counts['started'] == 1
+
+
+def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():
+    rig = standard_sequences()['walk_across'].rig
+    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
+    p1 = rig.rectification()[2]
+    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    warm, points, pixels = _painted(rig, _legs(-1.0, 4.3))
+
+    def cut(x, y, strength):
+        return Detection(x, y, 0.95, 20, strength, np.eye(2) * 1e-3, head_visible=False,
+                         cut_top=True)
+    # A fragment 0.2 m aside of the same body holds one leg in its window: alone, it stands.
+    fragment = cut(-0.8, 4.3, 0.5)
+    assert legs_fraction(warm, (-0.8, 4.3), transform, intrinsics, points, pixels) >= 0.5
+    counts = {}
+    marked = standing_on_legs([cut(-1.0, 4.3, 1.0), fragment, cut(0.0, -1.0, 0.4)], warm,
+                              transform, intrinsics, points, pixels, counts=counts)
+    assert [d.legs_seen for d in marked] == [True, False, False]
+    assert counts == {'cut_legs_checked': 2, 'cut_legs_seen': 1, 'cut_legs_out_of_image': 1,
+                      'cut_legs_fragment': 1, 'cut_legs_gap': 0}
+    assert standing_on_legs([fragment], warm, transform, intrinsics, points,
+                            pixels)[0].legs_seen
 
 
 def test_the_warm_background_sees_a_person_there_from_the_first_frame_and_ignores_an_ffc():

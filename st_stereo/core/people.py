@@ -98,10 +98,13 @@ class PeopleConfig:
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
         'the floor at its position) hold warm pixels with matches at their depth, in min_hits '
-        'of its detections; 0: never (needs the camera matrix)')
-    legs_occluded_m: float = _field(
-        0.6, 'a row of those legs shows them only if its warm pixels hold matched points not '
-        'nearer than the legs by more than this (else something in front of them), m')
+        'of its last min_hits + 1 detections; 0: never (needs the camera matrix)')
+    legs_depth_tolerance_m: float = _field(
+        0.4, 'a row of those legs shows them only if matched points on its warm pixels lie '
+        'within this of the depth of the legs (median; else something in front or behind), m')
+    legs_max_gap_m: float = _field(
+        0.25, 'and the warm column at it from 0.1 to 0.8 m has no cool stretch longer than '
+        'this (a warm computer under a desk with a screen on it: knee space and desk top), m')
     reacquire_cut_s: float = _field(
         0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
     max_range_m: float = _field(
@@ -133,9 +136,10 @@ class PeopleConfig:
         if not 0.0 <= self.legs_min_fraction <= 1.0:
             raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
                              f'{self.legs_min_fraction!r}')
-        if not (math.isfinite(self.legs_occluded_m) and self.legs_occluded_m > 0):
-            raise ValueError(f'people.legs_occluded_m: expected a number > 0, got '
-                             f'{self.legs_occluded_m!r}')
+        for name in ('legs_depth_tolerance_m', 'legs_max_gap_m'):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f'people.{name}: expected a number > 0, got '
+                                 f'{getattr(self, name)!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
 
@@ -299,53 +303,150 @@ def project_to_pixels(points, fx, fy, cx, cy):
 
 
 LEGS_HEIGHTS_M = (0.1, 0.5)      # the legs' segment above the floor that legs_fraction looks at
+COLUMN_HEIGHTS_M = (0.1, 0.8)    # the column warm_column_gap_m looks at: legs up past a desk
+
+
+def vertical_segment_rows(floor_xy, heights_m, transform, intrinsics, shape, half_width_m):
+    """
+    Image rows a vertical segment above the floor crosses, each with its window and depth.
+
+    The points ``heights_m`` above the floor at ``floor_xy`` (world frame) go into the
+    rectified left frame (``p = R^T (p_world - t)``, the inverse of ``transform``) and onto
+    the image (``u = fx X / Z + cx``, ``v = fy Y / Z + cy``). Returns, in order of height,
+    ``(samples, row, low, high, depth)`` per distinct row inside the image of ``shape``: how
+    many of the heights fall on it, the columns within ``half_width_m`` of the segment at its
+    depth ``Z`` (``high < low``: none inside). Points behind the camera are left out.
+    """
+    rotation, translation = transform
+    fx, fy, cx, cy = intrinsics
+    heights = np.asarray(heights_m, dtype=np.float64)
+    world = np.column_stack([np.full(len(heights), floor_xy[0]),
+                             np.full(len(heights), floor_xy[1]), heights])
+    camera = (world - translation) @ rotation
+    ahead = camera[:, 2] > 0
+    heights, camera = heights[ahead], camera[ahead]
+    rows = np.rint(fy * camera[:, 1] / camera[:, 2] + cy).astype(int)
+    out = []
+    for row in dict.fromkeys(rows.tolist()):
+        if not 0 <= row < shape[0]:
+            continue
+        at = camera[rows == row].mean(axis=0)
+        u = fx * at[0] / at[2] + cx
+        half = half_width_m * fx / at[2]
+        out.append((int(np.count_nonzero(rows == row)), row, max(0, math.ceil(u - half)),
+                    min(shape[1] - 1, math.floor(u + half)), float(at[2])))
+    return out
 
 
 def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=None):
     """
     Fraction of the image rows of a standing body's legs that show warm legs at their depth.
 
-    The segment ``LEGS_HEIGHTS_M`` above the floor at ``floor_xy`` (world frame) goes into
-    the rectified left frame (``p = R^T (p_world - t)``, the inverse of ``transform``) and
-    onto the image (``u = fx X / Z + cx``, ``v = fy Y / Z + cy``). A row it crosses shows
-    legs when a pixel of ``warm`` lies within ``person_radius_m / 2`` of the segment
-    (horizontally, at the segment's depth: two legs, or a position a little off) and the
-    matched ``points`` (rectified left frame, n x 3, at left ``pixels`` n x 2) on warm pixels
-    of that window, within one row of it, exist and are not nearer than the segment by more
-    than ``legs_occluded_m`` (their median). Warm pixels without a matched point there are no
-    evidence: a nearer warm body (a person seated in front of a screen) covers the rows under
-    a far object as well as legs would. A warm object on a desk has the cool desk below it; a
-    person cut by the image's top edge stands on warm legs.
+    The segment ``LEGS_HEIGHTS_M`` above the floor at ``floor_xy`` goes onto the image
+    (``vertical_segment_rows``). A row it crosses shows legs when a pixel of ``warm`` lies
+    within ``person_radius_m / 2`` of the segment (horizontally, at the segment's depth: two
+    legs, or a position a little off) and the matched ``points`` (rectified left frame,
+    n x 3, at left ``pixels`` n x 2) on warm pixels of that window, within one row of it,
+    exist and lie within ``legs_depth_tolerance_m`` of the segment's depth (their median).
+    Warm pixels without a matched point there are no evidence: a nearer warm body (a person
+    seated in front of a screen) covers the rows under a far object as well as legs would.
+    A warm object on a desk has the cool desk below it; a person cut by the image's top edge
+    stands on warm legs.
 
     Returns NaN when no row of the segment is in the image (or it is behind the camera).
     """
     config = config or PeopleConfig()
-    rotation, translation = transform
-    fx, fy, cx, cy = intrinsics
-    heights = np.linspace(*LEGS_HEIGHTS_M, 17)
-    world = np.column_stack([np.full(17, floor_xy[0]), np.full(17, floor_xy[1]), heights])
-    camera = (world - translation) @ rotation
-    camera = camera[camera[:, 2] > 0]
-    rows = np.rint(fy * camera[:, 1] / camera[:, 2] + cy).astype(int)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    point_rows, point_cols, inside = pixel_indices(warm.shape, *np.asarray(pixels).T)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    point_rows, point_cols, inside = pixel_indices(warm.shape, pixels[:, 0], pixels[:, 1])
     on_warm = inside & warm[point_rows, point_cols]
-    shown = total = 0
-    for row in np.unique(rows):
-        if not 0 <= row < warm.shape[0]:
-            continue
-        total += 1
-        at = camera[rows == row].mean(axis=0)
-        u = fx * at[0] / at[2] + cx
-        half = config.person_radius_m / 2 * fx / at[2]
-        low, high = max(0, int(np.ceil(u - half))), min(warm.shape[1] - 1, int(u + half))
+    segment = vertical_segment_rows(floor_xy, np.linspace(*LEGS_HEIGHTS_M, 17), transform,
+                                    intrinsics, warm.shape, config.person_radius_m / 2)
+    shown = 0
+    for _, row, low, high, depth in segment:
         if high < low or not warm[row, low:high + 1].any():
             continue
         here = on_warm & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
             (point_cols <= high)
-        if here.any() and np.median(points[here, 2]) >= at[2] - config.legs_occluded_m:
+        if here.any() and \
+                abs(np.median(points[here, 2]) - depth) <= config.legs_depth_tolerance_m:
             shown += 1
-    return shown / total if total else float('nan')
+    return shown / len(segment) if segment else float('nan')
+
+
+def warm_column_gap_m(warm, floor_xy, transform, intrinsics, config=None):
+    """
+    Longest cool stretch, in metres of height, of the column ``COLUMN_HEIGHTS_M`` at a body.
+
+    A standing person is warm from the feet up (legs, hips); a warm computer on the floor
+    under a warm screen is two warm pieces with the knee space and the desk top between
+    them, cool for 0.3 m. The column is sampled every 12.5 mm; a sample is warm when
+    ``warm`` holds a pixel within ``person_radius_m / 2`` of it on its row
+    (``vertical_segment_rows``); the gap is the longest run of cool samples in view times the
+    step. NaN without a row in view.
+    """
+    config = config or PeopleConfig()
+    heights = np.arange(COLUMN_HEIGHTS_M[0], COLUMN_HEIGHTS_M[1] + 1e-9, 0.0125)
+    segment = vertical_segment_rows(floor_xy, heights, transform, intrinsics, warm.shape,
+                                    config.person_radius_m / 2)
+    if not segment:
+        return float('nan')
+    run = longest = 0
+    for samples, row, low, high, _ in segment:
+        if high >= low and warm[row, low:high + 1].any():
+            run = 0
+        else:
+            run += samples
+            longest = max(longest, run)
+    return longest * 0.0125
+
+
+def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, config=None,
+                     counts=None):
+    """
+    Return the detections, those cut by the top edge on warm legs marked ``legs_seen``.
+
+    Each cut detection's ``legs_fraction`` (the other arguments are that function's) against
+    ``legs_min_fraction``. Strongest first: a cut body's points often make two peaks up to
+    0.6 m apart (depth noise, arms), whose leg windows each hold one leg, so a detection
+    within twice ``person_radius_m`` of a stronger one standing on legs is that body's
+    fragment, left weak (cut, no legs). The price: of two far people standing closer than
+    that, the weaker is published only once it walks ``min_travel_m`` or shows its head.
+    A detection on legs whose warm column has a cool stretch longer than ``legs_max_gap_m``
+    (``warm_column_gap_m``) is two warm things, not one body, and gets none.
+    ``counts`` (a dict, optional) gains ``cut_legs_checked``, ``cut_legs_seen``,
+    ``cut_legs_out_of_image`` (the segment off the image), ``cut_legs_fragment`` and
+    ``cut_legs_gap``.
+    """
+    config = config or PeopleConfig()
+    counts = {} if counts is None else counts
+    for key in ('cut_legs_checked', 'cut_legs_seen', 'cut_legs_out_of_image',
+                'cut_legs_fragment', 'cut_legs_gap'):
+        counts.setdefault(key, 0)
+    standing, out = [], []
+    for detection in detections:
+        if not detection.cut_top:
+            out.append(detection)
+            continue
+        if any(math.hypot(detection.x - x, detection.y - y) < 2 * config.person_radius_m
+               for x, y in standing):
+            counts['cut_legs_fragment'] += 1
+        else:
+            fraction = legs_fraction(warm, (detection.x, detection.y), transform, intrinsics,
+                                     points, pixels, config)
+            counts['cut_legs_checked'] += 1
+            if math.isnan(fraction):
+                counts['cut_legs_out_of_image'] += 1
+            elif fraction >= config.legs_min_fraction and warm_column_gap_m(
+                    warm, (detection.x, detection.y), transform, intrinsics,
+                    config) > config.legs_max_gap_m:
+                counts['cut_legs_gap'] += 1
+            elif fraction >= config.legs_min_fraction:
+                counts['cut_legs_seen'] += 1
+                standing.append((detection.x, detection.y))
+                detection = dataclasses.replace(detection, legs_seen=True)
+        out.append(detection)
+    return out
 
 
 def occupancy_peaks(xy, config):
@@ -492,7 +593,7 @@ class Track:
     head_visible: bool = True
     updated: bool = True
     seen_as_person: bool = False  # head seen once, or legs under a cut body min_hits times
-    legs_hits: int = 0            # detections cut by the top edge, standing on legs
+    legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
     confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
     depth_spread_m: float = float('nan')   # the last detection's depth spread
@@ -557,7 +658,8 @@ class PeopleTracker:
             # A head cut off by the image's edge keeps the height last seen whole.
             track.head_height = detection.head_height
             track.head_visible = detection.head_visible
-        track.legs_hits += int(detection.legs_seen)
+        track.legs_recent = (track.legs_recent + (detection.legs_seen,))[
+            -(self.config.min_hits + 1):]
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
         track.cut_top = detection.cut_top
         track.detection = detection
@@ -573,12 +675,12 @@ class PeopleTracker:
 
         A detection not cut by the top edge with its head high enough does by itself; a body
         cut by the top edge (a warm screen looks the same) does when ``min_hits`` of the
-        track's detections stood on warm legs (``legs_seen``): a passer-by's legs in front
-        of a screen lent it legs for one pair on the bundled recording, which alone does not
-        make it a person.
+        track's last ``min_hits + 1`` detections stood on warm legs (``legs_seen``): a
+        passer-by's legs in front of a screen lent it legs for one pair on the bundled
+        recording, which does not make it a person, nor do lends far apart in time.
         """
         if detection.cut_top:
-            return track.legs_hits >= self.config.min_hits
+            return sum(track.legs_recent) >= self.config.min_hits
         return detection.head_height >= self.config.min_head_height_m
 
     def gate(self, track):
@@ -648,7 +750,7 @@ class PeopleTracker:
                                      cut_top=detection.cut_top,
                                      depth_spread_m=detection.depth_spread_m,
                                      detection=detection,
-                                     legs_hits=int(detection.legs_seen)))
+                                     legs_recent=(detection.legs_seen,)))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
@@ -709,7 +811,8 @@ class PeopleEstimator:
         self.protect = None
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
                        'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0,
-                       'cut_legs_seen': 0}
+                       'cut_legs_checked': 0, 'cut_legs_seen': 0, 'cut_legs_out_of_image': 0,
+                       'cut_legs_fragment': 0, 'cut_legs_gap': 0, 'cut_legs_not_checked': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -752,34 +855,14 @@ class PeopleEstimator:
             self.config, np.column_stack([x_left, y])[keep], image_shape)
         self.counts['detections'] += len(detections)
         if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
-            detections = self._with_legs(detections, warm, intrinsics, points[keep],
-                                         np.column_stack([x_left, y])[keep])
+            detections = standing_on_legs(detections, warm, self.transform, intrinsics,
+                                          points[keep], np.column_stack([x_left, y])[keep],
+                                          self.config, self.counts)
+        else:       # no image or no camera matrix (or the check off): cut bodies must walk
+            self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
         tracks = self.tracker.update(detections, stamp_s)
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
-
-    def _with_legs(self, detections, warm, intrinsics, points, pixels):
-        """
-        Return the detections, those cut by the top edge on warm legs marked ``legs_seen``.
-
-        Strongest first: a cut body's points often make two peaks up to 0.6 m apart (depth
-        noise, arms), whose leg windows each hold one leg, so a detection within twice
-        ``person_radius_m`` of a stronger one standing on legs is that body's fragment, left
-        weak (cut, no legs).
-        """
-        standing, out = [], []
-        for detection in detections:
-            if detection.cut_top and not any(
-                    math.hypot(detection.x - x, detection.y - y) < 2 * self.config.person_radius_m
-                    for x, y in standing):
-                fraction = legs_fraction(warm, (detection.x, detection.y), self.transform,
-                                         intrinsics, points, pixels, self.config)
-                if fraction >= self.config.legs_min_fraction:
-                    self.counts['cut_legs_seen'] += 1
-                    standing.append((detection.x, detection.y))
-                    detection = dataclasses.replace(detection, legs_seen=True)
-            out.append(detection)
-        return out
 
     @staticmethod
     def _people_pixels(tracks, used, x_left, y, image_shape):
