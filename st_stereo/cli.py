@@ -309,8 +309,10 @@ def command_eval_people(args):
     from st_stereo.core.people import people_config_from_assignments
     from st_stereo.package_data import bundled_recording
     from st_stereo.tools import eval_people
+    sequences = eval_people.TUNING_SEQUENCES + eval_people.HELD_OUT_SEQUENCES \
+        if args.sequences is None else [name for name in args.sequences.split(',') if name]
     report, tallies = eval_people.evaluate(
-        sequences=[name for name in args.sequences.split(',') if name],
+        sequences=sequences,
         config=config_from_assignments(args.set),
         people_config=people_config_from_assignments(args.people),
         recording=None if args.no_recording else bundled_recording(),
@@ -436,8 +438,8 @@ def build_parser():
     e.set_defaults(handler=command_eval_points)
     e = eval_sub.add_parser('people', help='people on the floor: recall, precision, errors, '
                             'CLEAR MOT (motmetrics) on the sequences and the recording')
-    e.add_argument('--sequences',
-                   default='walk_across,two_people,sit_down,meeting_room,crossing')
+    e.add_argument('--sequences', default=None,
+                   help='comma-separated (default: the tuning and the held-out sequences)')
     e.add_argument('--max-frames', type=int, default=None, help='pairs per sequence (cap)')
     e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
     e.add_argument('--plot', help='floor plans of the true and estimated tracks (PNG)')

@@ -18,7 +18,9 @@ of the body is seen). Scores:
 - the paper's measure: the spread (standard deviation) of camera depth over the points of a
   standing person's detection.
 
-The held-out sequences (``meeting_room``, ``crossing``) were never used to choose a parameter.
+The held-out sequences (``meeting_room``, ``crossing``, ``open_office``) were never used to
+choose a parameter (``open_office`` was made after the legs of docs/people.md were chosen, to
+test them; the bundled recording was traced while their guards were chosen).
 """
 
 import dataclasses
@@ -31,7 +33,7 @@ from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rect
 HIT_M = 0.5
 VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view
 TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down')
-HELD_OUT_SEQUENCES = ('meeting_room', 'crossing')
+HELD_OUT_SEQUENCES = ('meeting_room', 'crossing', 'open_office')
 
 
 def heads_in_image(heads_rectified, model, shape, margin_px=0.0):
