@@ -14,8 +14,9 @@ import types
 import numpy as np
 import pytest
 from st_stereo.core.people import (detect_people, Detection, legs_fraction, PeopleConfig,
-                                   PeopleTracker, rectified_to_world, standing_on_legs,
-                                   warm_column_gap_m, WarmBackground, world_from_rectified)
+                                   PeopleEstimator, PeopleTracker, rectified_to_world,
+                                   standing_on_legs, vertical_segment_rows, warm_column_gap_m,
+                                   WarmBackground, world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
 from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
@@ -181,8 +182,10 @@ def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
     body = _legs(1.4, 4.55, top=1.1)
     body_warm, body_points, body_pixels = _painted(rig, body)
     assert legs_fraction(desk_warm, (1.4, 4.55), transform, intrinsics, points, pixels) >= 0.5
-    assert warm_column_gap_m(desk_warm, (1.4, 4.55), transform, intrinsics) > 0.25
-    assert warm_column_gap_m(body_warm, (1.4, 4.55), transform, intrinsics) <= 0.05
+    assert warm_column_gap_m(desk_warm, (1.4, 4.55), transform, intrinsics, points,
+                             pixels) > 0.25
+    assert warm_column_gap_m(body_warm, (1.4, 4.55), transform, intrinsics, body_points,
+                             body_pixels) <= 0.05
     cut = Detection(1.4, 4.55, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
                     cut_top=True)
     counts = {}
@@ -191,6 +194,75 @@ def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
     assert counts['cut_legs_gap'] == 1
     assert standing_on_legs([cut], body_warm, transform, intrinsics, body_points,
                             body_pixels)[0].legs_seen
+
+
+def _rig_geometry():
+    rig = standard_sequences()['walk_across'].rig
+    p1 = rig.rectification()[2]
+    return rig, world_from_rectified(rig.rig_pose(), rig.rectification()[0]), \
+        (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+
+
+def test_a_cool_cart_in_front_of_the_body_is_not_a_gap_in_it():
+    # A cart's handle 0.75-1.05 m high, 0.6 m in front: its image covers the body's column
+    # from about 0.5 m up; the legs below still show.
+    rig, transform, intrinsics = _rig_geometry()
+    body = _legs(0.3, 4.5, top=1.1)
+    box = np.array([[x, 4.5 - 0.6, z] for x in np.linspace(0.1, 0.5, 20)
+                    for z in np.linspace(0.75, 1.05, 20)])
+    body_warm, body_points, body_pixels = _painted(rig, body)
+    box_cells, box_points, box_pixels = _painted(rig, box)
+    warm = body_warm & ~box_cells                   # the cart hides the body, cool itself
+    hidden = box_cells[np.rint(body_pixels[:, 1]).astype(int),
+                       np.rint(body_pixels[:, 0]).astype(int)]
+    points = np.vstack([body_points[~hidden], box_points])
+    pixels = np.vstack([body_pixels[~hidden], box_pixels])
+    assert legs_fraction(warm, (0.3, 4.5), transform, intrinsics, points, pixels) >= 0.5
+    assert warm_column_gap_m(warm, (0.3, 4.5), transform, intrinsics, points, pixels) <= 0.05
+    # Without the cart's matches the cool rows are a gap (as under a desk's knee space).
+    assert warm_column_gap_m(warm, (0.3, 4.5), transform, intrinsics, body_points[~hidden],
+                             body_pixels[~hidden]) > 0.25
+
+
+def test_a_segment_off_the_image_side_gives_no_rows_and_no_crash():
+    rig, transform, intrinsics = _rig_geometry()
+    p1 = rig.rectification()[2]
+    for x in np.linspace(-3.5, -2.0, 61):
+        heights = np.linspace(0.1, 0.8, 29)
+        rows = vertical_segment_rows((x, 4.3), heights, transform, intrinsics, (60, 80), 0.15)
+        # The simulator's own projection of the segment: no row may come from a window
+        # wholly left of column 0 (its right edge, u + half, below -0.5 rounds off the image).
+        camera = rig.to_rectified_left(np.column_stack([np.full(29, x), np.full(29, 4.3),
+                                                        heights]))
+        u = p1[0, 0] * camera[:, 0] / camera[:, 2] + p1[0, 2]
+        v = np.rint(p1[1, 1] * camera[:, 1] / camera[:, 2] + p1[1, 2]).astype(int)
+        half = 0.15 * p1[0, 0] / camera[:, 2]
+        for _, row, low, high, _ in rows:
+            assert 0 <= low <= high <= 79
+            assert (u[v == row] + half[v == row]).max() >= low, (x, row)
+    warm = np.ones((60, 80), dtype=bool)
+    assert legs_fraction(warm, (-2.0, 4.3), transform, intrinsics, np.zeros((0, 3)),
+                         np.zeros(0)) == 0.0
+
+
+def test_cut_bodies_not_checked_for_legs_are_counted():
+    rig, transform, intrinsics = _rig_geometry()
+    world = _legs(-1.0, 4.6, top=1.75)
+    camera = rig.to_rectified_left(world)
+    p1 = rig.rectification()[2]
+    u = p1[0, 0] * camera[:, 0] / camera[:, 2] + p1[0, 2]
+    v = p1[1, 1] * camera[:, 1] / camera[:, 2] + p1[1, 2]
+    seen = (u >= 0) & (u <= 79) & (v >= 0) & (v <= 59)
+    image = np.full((60, 80), 8000.0)
+    image[np.rint(v[seen]).astype(int), np.rint(u[seen]).astype(int)] += 400
+    for intrinsics_given, key in ((None, 'cut_legs_not_checked'), (intrinsics, 'cut_legs_seen')):
+        estimator = PeopleEstimator(transform)
+        for t in (0.0, 0.115):
+            estimator.process(t, camera[seen], u[seen], v[seen], left_image=image,
+                              intrinsics=intrinsics_given)
+        assert estimator.counts[key] >= 2, (key, estimator.counts)
+        assert bool(estimator.tracker.tracks and estimator.tracker.tracks[0].confirmed) == \
+            (intrinsics_given is not None)
 
 
 def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
@@ -205,7 +277,7 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
     # Passers-by lending the screen legs for one pair, now and then, do not make it a person.
     lent = dataclasses.replace(screen, legs_seen=True)
     for index, t in enumerate(np.arange(0.345, 6.0, 0.115)):
-        tracks = tracker.update([lent if index % 5 == 0 else screen], t)
+        tracks = tracker.update([lent if index % 3 == 0 else screen], t)
         assert all(track.state[0] < 0 for track in tracks), t
     assert tracker.counts['started'] == 1
 

@@ -315,7 +315,8 @@ def vertical_segment_rows(floor_xy, heights_m, transform, intrinsics, shape, hal
     the image (``u = fx X / Z + cx``, ``v = fy Y / Z + cy``). Returns, in order of height,
     ``(samples, row, low, high, depth)`` per distinct row inside the image of ``shape``: how
     many of the heights fall on it, the columns within ``half_width_m`` of the segment at its
-    depth ``Z`` (``high < low``: none inside). Points behind the camera are left out.
+    depth ``Z``. Points behind the camera, and rows whose window lies wholly off the image's
+    side (a column leans outwards and leaves it before its foot), are left out.
     """
     rotation, translation = transform
     fx, fy, cx, cy = intrinsics
@@ -333,8 +334,9 @@ def vertical_segment_rows(floor_xy, heights_m, transform, intrinsics, shape, hal
         at = camera[rows == row].mean(axis=0)
         u = fx * at[0] / at[2] + cx
         half = half_width_m * fx / at[2]
-        out.append((int(np.count_nonzero(rows == row)), row, max(0, math.ceil(u - half)),
-                    min(shape[1] - 1, math.floor(u + half)), float(at[2])))
+        low, high = max(0, math.ceil(u - half)), min(shape[1] - 1, math.floor(u + half))
+        if low <= high:
+            out.append((int(np.count_nonzero(rows == row)), row, low, high, float(at[2])))
     return out
 
 
@@ -364,7 +366,7 @@ def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=
                                     intrinsics, warm.shape, config.person_radius_m / 2)
     shown = 0
     for _, row, low, high, depth in segment:
-        if high < low or not warm[row, low:high + 1].any():
+        if not warm[row, low:high + 1].any():
             continue
         here = on_warm & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
             (point_cols <= high)
@@ -374,7 +376,7 @@ def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=
     return shown / len(segment) if segment else float('nan')
 
 
-def warm_column_gap_m(warm, floor_xy, transform, intrinsics, config=None):
+def warm_column_gap_m(warm, floor_xy, transform, intrinsics, points, pixels, config=None):
     """
     Longest cool stretch, in metres of height, of the column ``COLUMN_HEIGHTS_M`` at a body.
 
@@ -382,22 +384,34 @@ def warm_column_gap_m(warm, floor_xy, transform, intrinsics, config=None):
     under a warm screen is two warm pieces with the knee space and the desk top between
     them, cool for 0.3 m. The column is sampled every 12.5 mm; a sample is warm when
     ``warm`` holds a pixel within ``person_radius_m / 2`` of it on its row
-    (``vertical_segment_rows``); the gap is the longest run of cool samples in view times the
-    step. NaN without a row in view.
+    (``vertical_segment_rows``). A cool row whose window holds a matched point (``points``,
+    n x 3 in the rectified left frame, at ``pixels``, within one row) nearer than the column
+    by more than ``legs_depth_tolerance_m`` is unknown, neither cool nor warm: something cool
+    in front of the body (a chair's back, a cart) hides it there. Closer than that (a box
+    carried against the body) it cannot be told from a desk top in front of a knee space,
+    and is a gap. The gap is the longest run of cool samples in view times the step. NaN
+    without a row in view.
     """
     config = config or PeopleConfig()
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    point_rows, point_cols, inside = pixel_indices(warm.shape, pixels[:, 0], pixels[:, 1])
     heights = np.arange(COLUMN_HEIGHTS_M[0], COLUMN_HEIGHTS_M[1] + 1e-9, 0.0125)
     segment = vertical_segment_rows(floor_xy, heights, transform, intrinsics, warm.shape,
                                     config.person_radius_m / 2)
     if not segment:
         return float('nan')
     run = longest = 0
-    for samples, row, low, high, _ in segment:
-        if high >= low and warm[row, low:high + 1].any():
+    for samples, row, low, high, depth in segment:
+        if warm[row, low:high + 1].any():
             run = 0
-        else:
-            run += samples
-            longest = max(longest, run)
+            continue
+        here = inside & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
+            (point_cols <= high)
+        if (points[here, 2] < depth - config.legs_depth_tolerance_m).any():
+            continue                    # hidden behind something nearer: not evidence
+        run += samples
+        longest = max(longest, run)
     return longest * 0.0125
 
 
@@ -437,10 +451,10 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
             counts['cut_legs_checked'] += 1
             if math.isnan(fraction):
                 counts['cut_legs_out_of_image'] += 1
-            elif fraction >= config.legs_min_fraction and warm_column_gap_m(
-                    warm, (detection.x, detection.y), transform, intrinsics,
-                    config) > config.legs_max_gap_m:
-                counts['cut_legs_gap'] += 1
+            elif fraction >= config.legs_min_fraction and not warm_column_gap_m(
+                    warm, (detection.x, detection.y), transform, intrinsics, points, pixels,
+                    config) <= config.legs_max_gap_m:
+                counts['cut_legs_gap'] += 1     # (NaN, no row in view: no legs either)
             elif fraction >= config.legs_min_fraction:
                 counts['cut_legs_seen'] += 1
                 standing.append((detection.x, detection.y))

@@ -19,8 +19,10 @@ of the body is seen). Scores:
   standing person's detection.
 
 The held-out sequences (``meeting_room``, ``crossing``, ``open_office``) were never used to
-choose a parameter (``open_office`` was made after the legs of docs/people.md were chosen, to
-test them; the bundled recording was traced while their guards were chosen).
+choose a parameter. ``open_office`` was made after the legs of docs/people.md were chosen, to
+test them; its first run showed the failure the column-gap guard then answered, so it is held
+out for everything but that guard. The bundled recording was traced while the legs' guards
+were chosen.
 """
 
 import dataclasses
@@ -34,6 +36,8 @@ HIT_M = 0.5
 VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view
 TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down')
 HELD_OUT_SEQUENCES = ('meeting_room', 'crossing', 'open_office')
+# What a held-out sequence was seen for (it is held out for everything else).
+HELD_OUT_EXCEPT = {'open_office': 'held out but for the column-gap guard'}
 
 
 def heads_in_image(heads_rectified, model, shape, margin_px=0.0):
@@ -127,6 +131,13 @@ class PeopleTally:
                'people_ms_p95': stat(self.milliseconds, 95)}
         out.update(self.mot())
         return out
+
+
+def held_out_title(name):
+    """Return the sequence's name as the tables show it: what it is held out from."""
+    if name not in HELD_OUT_SEQUENCES:
+        return name
+    return f'{name} ({HELD_OUT_EXCEPT.get(name, "held out")})'
 
 
 def visible_people(labels, count):
@@ -254,7 +265,7 @@ def plot_floor_plans(tallies, path):
         for key, xy in estimates.items():
             xy = np.array(xy)
             axis.plot(xy[:, 0], xy[:, 1], '.', markersize=3, label=f'id {key}')
-        axis.set_title(f'{name} (held out)' if name in HELD_OUT_SEQUENCES else name, fontsize=9)
+        axis.set_title(held_out_title(name), fontsize=9)
         axis.set_xlabel('x (m)')
         axis.set_ylabel('y (m), away from the rig')
         axis.set_aspect('equal')
@@ -299,7 +310,7 @@ def markdown_table(report):
              'depth spread on a person, median (m) |',
              '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
     for name, row in report.items():
-        title = f'{name} (held out)' if name in HELD_OUT_SEQUENCES else name
+        title = held_out_title(name)
         lines.append(
             f'| {title} | {row["pairs"]} | {row["truths"]} | {row["recall"]:.1%} | '
             f'{row["precision"]:.1%} | {row["horizontal_median_m"]:.3f} / '
