@@ -606,7 +606,7 @@ class Track:
     last_seen_s: float
     head_visible: bool = True
     updated: bool = True
-    seen_as_person: bool = False  # head seen once, or legs under a cut body min_hits times
+    seen_as_person: bool = False  # head seen once, or legs in min_hits of min_hits + 1
     legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
     confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
@@ -834,9 +834,10 @@ class PeopleEstimator:
         Return the PeopleFrame of one pair (see the class docstring).
 
         ``intrinsics``: ``(fx, fy, cx, cy)`` of the rectified left image (camera_info ``P``);
-        with it and ``left_image``, a body cut by the image's top edge whose legs show warm
-        (``legs_fraction``) counts as a person at once (``cut_legs_seen``); without, such a
-        body must move ``min_travel_m`` first.
+        with it and ``left_image``, a body cut by the image's top edge standing on warm legs
+        (``standing_on_legs``) in ``min_hits`` of its track's last ``min_hits + 1`` pairs
+        counts as a person (``cut_legs_seen``); without, such a body must move
+        ``min_travel_m`` first (``cut_legs_not_checked``).
         """
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
