@@ -114,6 +114,13 @@ def test_a_body_cut_by_the_top_edge_is_kept_and_marked():
     assert len(cut) == 1 and cut[0].cut_top and not cut[0].head_visible
 
 
+def _rig_geometry():
+    rig = standard_sequences()['walk_across'].rig
+    p1 = rig.rectification()[2]
+    return rig, world_from_rectified(rig.rig_pose(), rig.rectification()[0]), \
+        (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+
+
 def _painted(rig, surfaces, shape=(60, 80)):
     """
     Warm mask and matched points of world surface samples, by the simulator's camera model.
@@ -140,10 +147,7 @@ def _legs(x, y, top=0.85):
 
 
 def test_legs_are_seen_under_a_cut_body_not_under_a_screen_nor_behind_a_nearer_body():
-    rig = standard_sequences()['walk_across'].rig
-    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
-    p1 = rig.rectification()[2]
-    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    rig, transform, intrinsics = _rig_geometry()
     legs = _legs(-1.0, 4.3)
     screen = np.array([[x, 4.5, z] for x in np.linspace(1.05, 1.65, 30)
                        for z in np.linspace(0.78, 1.15, 20)])
@@ -168,10 +172,7 @@ def test_legs_are_seen_under_a_cut_body_not_under_a_screen_nor_behind_a_nearer_b
 
 
 def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
-    rig = standard_sequences()['walk_across'].rig
-    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
-    p1 = rig.rectification()[2]
-    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    rig, transform, intrinsics = _rig_geometry()
     # A computer on the floor under a desk (top 0.70-0.74 m, cool) with a screen on it, both
     # warm and 4.5-4.8 m away; the same place once more with a person standing there.
     computer = np.array([[x, y, z] for x in np.linspace(1.3, 1.5, 8)
@@ -194,13 +195,6 @@ def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
     assert counts['cut_legs_gap'] == 1
     assert standing_on_legs([cut], body_warm, transform, intrinsics, body_points,
                             body_pixels)[0].legs_seen
-
-
-def _rig_geometry():
-    rig = standard_sequences()['walk_across'].rig
-    p1 = rig.rectification()[2]
-    return rig, world_from_rectified(rig.rig_pose(), rig.rectification()[0]), \
-        (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
 
 
 def test_a_cool_cart_in_front_of_the_body_is_not_a_gap_in_it():
@@ -283,10 +277,7 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
 
 
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():
-    rig = standard_sequences()['walk_across'].rig
-    transform = world_from_rectified(rig.rig_pose(), rig.rectification()[0])
-    p1 = rig.rectification()[2]
-    intrinsics = (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    rig, transform, intrinsics = _rig_geometry()
     warm, points, pixels = _painted(rig, _legs(-1.0, 4.3))
 
     def cut(x, y, strength):

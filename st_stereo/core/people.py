@@ -340,6 +340,11 @@ def vertical_segment_rows(floor_xy, heights_m, transform, intrinsics, shape, hal
     return out
 
 
+def in_window(rows, cols, row, low, high):
+    """Whether each pixel (``rows``, ``cols``) is within one row of ``row``, in ``low..high``."""
+    return (np.abs(rows - row) <= 1) & (cols >= low) & (cols <= high)
+
+
 def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=None):
     """
     Fraction of the image rows of a standing body's legs that show warm legs at their depth.
@@ -368,8 +373,7 @@ def legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config=
     for _, row, low, high, depth in segment:
         if not warm[row, low:high + 1].any():
             continue
-        here = on_warm & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
-            (point_cols <= high)
+        here = on_warm & in_window(point_rows, point_cols, row, low, high)
         if here.any() and \
                 abs(np.median(points[here, 2]) - depth) <= config.legs_depth_tolerance_m:
             shown += 1
@@ -406,8 +410,7 @@ def warm_column_gap_m(warm, floor_xy, transform, intrinsics, points, pixels, con
         if warm[row, low:high + 1].any():
             run = 0
             continue
-        here = inside & (np.abs(point_rows - row) <= 1) & (point_cols >= low) & \
-            (point_cols <= high)
+        here = inside & in_window(point_rows, point_cols, row, low, high)
         if (points[here, 2] < depth - config.legs_depth_tolerance_m).any():
             continue                    # hidden behind something nearer: not evidence
         run += samples
