@@ -103,8 +103,11 @@ class MatcherNode(Node):
         self._waiting = None         # (monotonic arrival, the pair's four messages)
         # On the steady clock: under use_sim_time a /clock that stops (a bag's end) must not
         # keep the last pair waiting.
-        self.create_timer(0.02, self._release_stale_pair,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # Running only while a pair waits: an idle 50 Hz timer woke the executor 50 times a
+        # second, each wake-up rebuilding its wait set (measured: 7 ms of CPU per pair).
+        self._stale_timer = self.create_timer(0.02, self._release_stale_pair,
+                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._stale_timer.cancel()
         self.last_error = ''
         self.last_result = None
         self.latencies = []
@@ -192,6 +195,7 @@ class MatcherNode(Node):
     def _release_waiting(self):
         if self._waiting is not None:
             messages, self._waiting = self._waiting[1], None
+            self._stale_timer.cancel()
             self._submit(messages)
 
     def _release_stale_pair(self):
@@ -229,6 +233,7 @@ class MatcherNode(Node):
         if self.config.skew_compensation and self.pair_info_seen and not known:
             self.counts['waited_for_pair_info'] += 1
             self._waiting = (time.monotonic(), messages)
+            self._stale_timer.reset()
             return
         self._submit(messages)
 
