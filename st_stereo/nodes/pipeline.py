@@ -12,7 +12,7 @@ import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
 from st_stereo.nodes.conversions import point_cloud_array, point_cloud_fields
@@ -47,20 +47,20 @@ class SuiteMonitor(Node):
 
     def __init__(self, driver=None, watch_raw=False, watch_people=False, **kwargs):
         super().__init__('suite_monitor', **with_default_namespace(kwargs))
-        self.create_subscription(PointCloud2, 'points2', self._on_points,
-                                 qos_profile_sensor_data)
+        # Reliable: what the monitor counts as lost must be the suite's loss, not its own (a
+        # best-effort reader on a loaded machine may miss samples the suite delivered).
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(PointCloud2, 'points2', self._on_points, qos)
         self.people = {}          # stamp in ns -> people/detections rows (with watch_people)
         self.people_times = []    # wall times people/detections arrived
         if watch_people:
-            self.create_subscription(PointCloud2, 'people/detections', self._on_people,
-                                     qos_profile_sensor_data)
+            self.create_subscription(PointCloud2, 'people/detections', self._on_people, qos)
         self.driver = driver
         self.raw_received = {}    # stamp key -> wall time left/image_raw arrived here
         self.raw_count = 0        # left/image_raw messages received (with watch_raw)
         self.matcher_values = {}  # the matcher's last diagnostics (with watch_raw)
         if watch_raw:
-            self.create_subscription(Image, 'left/image_raw', self._on_raw,
-                                     qos_profile_sensor_data)
+            self.create_subscription(Image, 'left/image_raw', self._on_raw, qos)
             self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.times, self.latencies, self.matches, self.depths = [], [], [], []
         self.stamp_latencies, self.pair_latencies = [], []

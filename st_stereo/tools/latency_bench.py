@@ -15,6 +15,7 @@ the three nodes as separate processes, the monitor here. Two latencies per point
 CPU is the CPU time of the node processes over the run, in % of one core.
 """
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -94,57 +95,109 @@ def one_process(seconds, warmup=8):
         rclpy.try_shutdown()
 
 
-def _run_node_processes(commands, executor, monitors, seconds, grace_s):
+def _rig_ready(monitor):
     """
-    Run ``commands`` as processes while ``executor`` spins the ``monitors``; stop them all.
+    Tell whether the monitor's rig can take a pair.
 
-    The run ends once ``seconds`` have passed and no cloud came for 3 s (the recordings
-    ended), or ``grace_s`` after ``seconds`` at the latest. Returns (CPU seconds of the
-    processes, wall seconds).
+    It can once its matcher publishes ``points2`` (it does so after loading its kernels) and
+    its rectifier and this monitor subscribe to ``image_raw``.
+    """
+    namespace = monitor.get_namespace().rstrip('/')
+    return monitor.count_publishers(f'{namespace}/points2') >= 1 and \
+        monitor.count_subscribers(f'{namespace}/left/image_raw') >= 2
+
+
+def _cpu_over(samples, start, end):
+    """CPU seconds of the node processes between wall times ``start`` and ``end``."""
+    times, cpu = np.array(samples).T
+    return float(np.interp(end, times, cpu) - np.interp(start, times, cpu))
+
+
+def _run_node_processes(commands, drivers, executor, monitors, seconds, grace_s,
+                        ready_timeout_s=60.0):
+    """
+    Run node processes while ``executor`` spins the ``monitors``; stop them all.
+
+    ``commands`` (rectifiers, matchers) start first; the ``drivers`` start once every
+    monitor's rig is ready (``_rig_ready``) or after ``ready_timeout_s``, so that the pairs
+    scored are not those that arrive while the other processes still import and load their
+    kernels. The run ends once ``seconds`` have passed since the drivers started and no cloud
+    came for 3 s (the recordings ended), or ``grace_s`` later at the latest. Returns the CPU
+    samples ``[(wall time, CPU seconds of all the processes)]`` (every 0.25 s; scored over a
+    window with ``_cpu_over``) and whether every rig was ready before its driver started.
     """
     processes = [subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                  for command in commands]
     handles = [psutil.Process(p.pid) for p in processes]
+    samples = []
+
+    def sample():
+        total = 0.0
+        for handle in handles:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                total += _cpu_seconds(handle)
+        samples.append((time.time(), total))
+
     try:
+        deadline = time.monotonic() + ready_timeout_s
+        while not all(_rig_ready(m) for m in monitors) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        ready = all(_rig_ready(m) for m in monitors)
+        started = [subprocess.Popen(command, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL) for command in drivers]
+        processes += started
+        handles += [psutil.Process(p.pid) for p in started]
         wall_start = time.monotonic()
-        cpu_start = sum(_cpu_seconds(h) for h in handles)
-        last_cloud = wall_start
+        last_cloud = last_sample = wall_start
+        sample()
         while time.monotonic() < wall_start + seconds + grace_s:
             clouds = sum(len(m.times) for m in monitors)
             executor.spin_once(timeout_sec=0.05)
             now = time.monotonic()
+            if now - last_sample >= 0.25:
+                sample()
+                last_sample = now
             if sum(len(m.times) for m in monitors) != clouds:
                 last_cloud = now
             elif now - last_cloud > 3.0 and now - wall_start > seconds:
                 break
-        cpu = sum(_cpu_seconds(h) for h in handles) - cpu_start
-        return cpu, time.monotonic() - wall_start
+        sample()
+        return samples, ready
     finally:
         _stop_processes(processes)
 
 
 def three_processes(seconds, warmup=8):
     """Run driver, rectifier and matcher as processes, the monitor here; returns the summary."""
-    commands = []
+    commands, drivers = [], []
     for module in NODE_MODULES:
         extra = ['-p', f'duration:={float(seconds)}'] if 'driver' in module else []
-        commands.append([sys.executable, '-c', f'from {module} import main; main()',
-                         '--ros-args', *extra])
+        (drivers if 'driver' in module else commands).append(
+            [sys.executable, '-c', f'from {module} import main; main()', '--ros-args', *extra])
     rclpy.init()
     monitor = SuiteMonitor(watch_raw=True)
     executor = SingleThreadedExecutor()
     executor.add_node(monitor)
     try:
-        cpu, wall = _run_node_processes(commands, executor, [monitor], seconds, 20.0)
+        samples, _ = _run_node_processes(commands, drivers, executor, [monitor], seconds, 20.0)
         stale = monitor.matcher_values.get('pairs dropped_stale', 'n/a')
-        return _summary(monitor, cpu, wall, warmup, {'dropped_stale': stale})
+        # CPU over the scored clouds only (after the warm-up), not the processes' start-up.
+        window = (monitor.times[warmup], monitor.times[-1]) \
+            if len(monitor.times) > warmup + 1 else (samples[0][0], samples[-1][0])
+        cpu = _cpu_over(samples, *window)
+        return _summary(monitor, cpu, max(window[1] - window[0], 1e-9), warmup,
+                        {'dropped_stale': stale})
     finally:
         monitor.destroy_node()
         rclpy.try_shutdown()
 
 
 def _rig_commands(rig, seconds):
-    """Return the command lines of one rig (three nodes) replaying the bundled recording."""
+    """
+    Return the command lines of one rig replaying the bundled recording.
+
+    ``(others, driver)``: the rectifier's and the matcher's, and the driver's (started last).
+    """
     from st_stereo.package_data import bundled_recording
     recording = bundled_recording()
     commands = []
@@ -157,7 +210,7 @@ def _rig_commands(rig, seconds):
                       ('-p', f'{side}.camera_info_url:=file://{recording / side}.yaml')]
         commands.append([sys.executable, '-c', f'from {module} import main; main()',
                          '--ros-args', '-r', f'__ns:=/rig{rig}', *extra])
-    return commands
+    return commands[1:], commands[:1]
 
 
 def rig_losses(monitors, window):
@@ -180,26 +233,29 @@ def rig_losses(monitors, window):
     return rows
 
 
-def many_rigs(count, seconds, warmup_s=1.0):
+def many_rigs(count, seconds, warmup_s=2.0):
     """
     Run ``count`` rigs on this machine, each three processes replaying the bundled recording.
 
-    The rigs are scored over one common window, from ``warmup_s`` after the last rig's first
-    cloud (the node processes start, discover each other and load their kernels while the
-    drivers already publish) to 1 s before the last pair: a rig is held when every pair it
-    published in the window came back as a cloud and it published at least 90 % of the
-    cameras' unique frame rate there (a starved driver, or a monitor that missed images, is
-    not held either); the window must last 3 s at least. A rig without any cloud is not held.
+    The rectifiers and matchers start first; the drivers once every rig is ready
+    (``_rig_ready``: its matcher has loaded its kernels). The rigs are scored over one common
+    window, from ``warmup_s`` after the last rig's first cloud (the drivers' own start-up) to
+    1 s before the last pair: a rig is held when every pair it published in the window came
+    back as a cloud and it published at least 90 % of the cameras' unique frame rate there (a
+    starved driver, or a monitor that missed images, is not held either); the window must last
+    3 s at least. A rig without any cloud is not held. The CPU is that of the window.
     """
     rclpy.init()
     monitors = [SuiteMonitor(watch_raw=True, namespace=f'rig{k}') for k in range(1, count + 1)]
     executor = SingleThreadedExecutor()
     for monitor in monitors:
         executor.add_node(monitor)
-    commands = [c for k in range(1, count + 1) for c in _rig_commands(k, seconds)]
+    rigs = [_rig_commands(k, seconds) for k in range(1, count + 1)]
     launched = time.time()
     try:
-        cpu, wall = _run_node_processes(commands, executor, monitors, seconds, 30.0)
+        samples, ready = _run_node_processes([c for others, _ in rigs for c in others],
+                                             [c for _, driver in rigs for c in driver],
+                                             executor, monitors, seconds, 30.0)
     finally:
         for monitor in monitors:
             monitor.destroy_node()
@@ -214,10 +270,10 @@ def many_rigs(count, seconds, warmup_s=1.0):
     lowest_rate = min(published / length for published, _ in losses)
     held = length > 3.0 and not any(lost for _, lost in losses) and \
         lowest_rate >= 0.9 * UNIQUE_FRAME_HZ
-    return {'rigs': count, 'window_s': length,
+    return {'rigs': count, 'window_s': length, 'ready': ready,
             'published': sum(p for p, _ in losses), 'lost': sum(lost for _, lost in losses),
             'lowest_rate_hz': lowest_rate, 'held': held,
-            'cpu_percent_of_one_core': 100.0 * cpu / wall}
+            'cpu_percent_of_one_core': 100.0 * _cpu_over(samples, *window) / length}
 
 
 def main(argv=None):
@@ -243,13 +299,15 @@ def main(argv=None):
               f'{row["dropped_stale"]} | {row["cpu_percent_of_one_core"]:.1f} |')
     if args.rigs:
         print()
-        print('| rigs | scored window s | pairs published in it | pairs lost | '
-              'lowest published rate Hz | held | CPU % of one core |')
-        print('|---|---|---|---|---|---|---|')
+        print('| rigs | all ready before their drivers | scored window s | '
+              'pairs published in it | pairs lost | lowest published rate Hz | held | '
+              'CPU % of one core |')
+        print('|---|---|---|---|---|---|---|---|')
         largest = 0
         for count in range(1, args.rigs + 1):
             row = many_rigs(count, min(args.seconds, 15.0))
-            print(f'| {count} | {row["window_s"]:.1f} | {row["published"]} | {row["lost"]} | '
+            print(f'| {count} | {"yes" if row["ready"] else "no"} | {row["window_s"]:.1f} | '
+                  f'{row["published"]} | {row["lost"]} | '
                   f'{row["lowest_rate_hz"]:.2f} | {"yes" if row["held"] else "no"} | '
                   f'{row["cpu_percent_of_one_core"]:.1f} |', flush=True)
             if not row['held']:
