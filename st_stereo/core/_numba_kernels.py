@@ -154,3 +154,202 @@ def lades_volume(left, right, disparities, window, tiny, out):
                 energy = right_energy[r, c - d] if c >= d else zero
                 denominator = np.sqrt(max(left_energy[r, c] * energy, zero))
                 out[k, r, c] = numerator[r, c] / max(denominator, tiny)
+
+
+@jit
+def cross_power(left_spectra, right_spectra, mask, out):
+    """
+    Band-limited normalised cross-power spectra ``R = F_R conj(F_L) / |.|`` (paper eq. 10).
+
+    ``left_spectra``, ``right_spectra``, ``out`` (n, W, W // 2 + 1) complex128 (rfft2 half
+    spectra); ``mask`` (W, W // 2 + 1): 1 inside the pass band, 0 outside. What
+    ``subpixel.poc_from_spectra`` computes (magnitudes floored at float32's 1e-20), with
+    ``sqrt(re^2 + im^2)`` for numpy's ``hypot`` and one reciprocal for its complex division
+    (a few times faster; equal to within a few ulp).
+    """
+    n, rows, cols = out.shape
+    tiny = np.float64(np.float32(1e-20))
+    for i in range(n):
+        for r in range(rows):
+            for c in range(cols):
+                a = right_spectra[i, r, c]
+                b = left_spectra[i, r, c]
+                re = a.real * b.real + a.imag * b.imag
+                im = a.imag * b.real - a.real * b.imag
+                scale = mask[r, c] / max(np.sqrt(re * re + im * im), tiny)
+                out[i, r, c] = complex(re * scale, im * scale)
+
+
+@jit
+def shift_phases(omega, shifts, out):
+    """
+    Phase ramps ``exp(i omega shift)`` of ``fourier.RowShifter.shift``, complex64.
+
+    ``omega`` (F,) float32, ``2 pi f`` rounded to float32 as the reference does; ``shifts``
+    (n,) float32; writes ``out`` (n, F). float32 arithmetic, libm's ``cosf`` / ``sinf`` as
+    numpy's complex64 ``exp`` (the spectrum is multiplied by numpy: its SIMD complex64
+    product rounds differently from a scalar one).
+    """
+    n, count = out.shape
+    for i in range(n):
+        for k in range(count):
+            angle = omega[k] * shifts[i]
+            out[i, k] = np.complex64(complex(np.cos(angle), np.sin(angle)))
+
+
+@jit
+def poc_peak_fits(surfaces, band_ratio, delta, denominator, inside, peak_value, lag):
+    """
+    Peak of each POC surface and Nagashima's fit along its row (paper eqs. 11, 14-17).
+
+    ``surfaces`` (n, W, W) float64, unshifted (lag ``k`` at index ``k mod W``). Per surface:
+    the highest sample (the first in row order on ties, as ``argmax``), the row through it
+    re-ordered so that lag 0 sits at ``W // 2``, and, where the peak is at least 3 samples
+    from both ends (``inside``), the least-squares offset over ``p in {p - 1, p, p + 1}``,
+    ``d in {1, 2}`` in the order of ``subpixel.nagashima_peak_offset`` (elsewhere the fit is
+    taken about the centre, as there). Writes ``delta``, ``denominator`` (``sum(u^2)``),
+    ``inside``, ``peak_value`` and ``lag`` (the peak's integer lag).
+    """
+    n, size, _ = surfaces.shape
+    half = size // 2
+    cos_1 = np.cos(np.pi * band_ratio * 1)
+    cos_2 = np.cos(np.pi * band_ratio * 2)
+    profile = np.empty(size, dtype=np.float64)
+    for i in range(n):
+        best = surfaces[i, 0, 0]
+        best_row = 0
+        best_col = 0
+        for r in range(size):
+            for c in range(size):
+                if surfaces[i, r, c] > best:
+                    best = surfaces[i, r, c]
+                    best_row = r
+                    best_col = c
+        for j in range(size):
+            profile[j] = surfaces[i, best_row, (j - half) % size]
+        peak = (best_col + half) % size
+        peak_value[i] = profile[peak]
+        inside[i] = 3 <= peak <= size - 4
+        centre = peak if inside[i] else half
+        # numpy's sum over the six terms: the first, plus the sum of the other five.
+        numerator = 0.0
+        total = 0.0
+        first_uv = 0.0
+        first_uu = 0.0
+        for k in range(6):
+            p = centre + k // 2 - 1
+            d = 1 + k % 2
+            cos_d = cos_1 if d == 1 else cos_2
+            r_p = profile[p]
+            r_minus = profile[p - d]
+            r_plus = profile[p + d]
+            at = np.float64(p - half)
+            u = r_minus + r_plus - 2.0 * cos_d * r_p
+            v = 2.0 * at * cos_d * r_p - (at - d) * r_minus - (at + d) * r_plus
+            if k == 0:
+                first_uu = u * u
+                first_uv = u * v
+            else:
+                total += u * u
+                numerator += u * v
+        total = first_uu + total
+        numerator = first_uv + numerator
+        denominator[i] = total
+        delta[i] = numerator / (total if total > 0 else 1.0)
+        lag[i] = peak - half
+
+
+@jit
+def feature_candidates(volume, candidates, inside, admissible, disparities, ys, xs, exclusion,
+                       best_index, best_value, runner_up):
+    """
+    Best candidate of each left feature and the best one beyond ``exclusion`` px (eq. 9).
+
+    What ``rough_matching._best_candidates`` and ``runner_up_similarity`` compute, for the
+    features ``(ys, xs)`` only: candidate ``k`` of a feature at (y, x) is valid where the right
+    pixel ``x - d_k`` exists, is a candidate (``candidates``) and ``admissible`` allows ``k``
+    (shape (D, rows, cols), or (D, 1, 1) for every pixel); the best is the first highest
+    similarity (-inf, index 0, without any); the runner-up is the highest valid similarity
+    more than ``exclusion`` from the best, -inf where the borders leave room for a rival
+    (``inside``) but none is valid, +inf where they leave none.
+    """
+    count = len(disparities)
+    per_pixel = admissible.shape[1] > 1
+    for i in range(len(ys)):
+        y = ys[i]
+        x = xs[i]
+        best = -np.inf
+        index = 0
+        for k in range(count):
+            c = x - disparities[k]
+            allowed = admissible[k, y, x] if per_pixel else admissible[k, 0, 0]
+            if c >= 0 and allowed and candidates[y, c] and volume[k, y, x] > best:
+                best = volume[k, y, x]
+                index = k
+        best_index[i] = index
+        best_value[i] = best
+        rival = -np.inf
+        room = False
+        for k in range(count):
+            if abs(k - index) <= exclusion:
+                continue
+            c = x - disparities[k]
+            allowed = admissible[k, y, x] if per_pixel else admissible[k, 0, 0]
+            if c >= 0 and allowed:
+                if inside[y, c]:
+                    room = True
+                if candidates[y, c] and volume[k, y, x] > rival:
+                    rival = volume[k, y, x]
+        runner_up[i] = rival if room else np.inf
+
+
+@jit
+def left_right_best(volume, valid_left, disparities, ys, x_rights, out):
+    """
+    Best left disparity of each matched right pixel (``left_right_consistent``).
+
+    For the right pixel (y, x_r) candidate ``k`` is the left pixel ``x_r + d_k``, valid where it
+    exists and ``valid_left`` holds; the first highest ``volume[k, y, x_r + d_k]`` (index 0
+    without any) gives ``out = d_k``.
+    """
+    cols = valid_left.shape[1]
+    for i in range(len(ys)):
+        y = ys[i]
+        best = -np.inf
+        index = 0
+        for k in range(len(disparities)):
+            x = x_rights[i] + disparities[k]
+            if x < cols and valid_left[y, x] and volume[k, y, x] > best:
+                best = volume[k, y, x]
+                index = k
+        out[i] = disparities[index]
+
+
+@jit
+def continuity_medians(grid, ys, xs, radius, out_count, out_median):
+    """
+    Median of the finite disparities in each match's (2 radius + 1)^2 square, itself excluded.
+
+    ``grid``: the matches' disparities, NaN elsewhere, padded by ``radius``; writes the number
+    of neighbours and their median (the mean of the two middle values for an even number), as
+    ``continuity_consistent``'s sort does.
+    """
+    side = 2 * radius + 1
+    values = np.empty(side * side, dtype=np.float64)
+    for i in range(len(ys)):
+        count = 0
+        for dy in range(side):
+            for dx in range(side):
+                if dy == radius and dx == radius:
+                    continue
+                value = grid[ys[i] + dy, xs[i] + dx]
+                if not np.isnan(value):
+                    # Insertion sort: at most (2 radius + 1)^2 - 1 values.
+                    j = count
+                    while j > 0 and values[j - 1] > value:
+                        values[j] = values[j - 1]
+                        j -= 1
+                    values[j] = value
+                    count += 1
+        out_count[i] = count
+        out_median[i] = 0.5 * (values[(count - 1) // 2] + values[count // 2]) if count else 0.0

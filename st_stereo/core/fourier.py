@@ -116,10 +116,12 @@ class RowShifter:
     Strips prepared once for many Fourier shifts (see ``fourier_shift_rows``).
 
     The de-ramped spectrum is computed once; each ``shift`` call costs one inverse FFT.
+    ``compiled``: the phase ramp by a numba kernel (``st_stereo.core.kernels``, float32 only).
     """
 
-    def __init__(self, strips, dtype=np.float64):
+    def __init__(self, strips, dtype=np.float64, compiled=False):
         strips = np.asarray(strips, dtype=dtype)
+        self.compiled = compiled and strips.dtype == np.float32
         self.width = strips.shape[-1]
         self.x = np.arange(self.width, dtype=dtype)
         self.first = strips[..., :1]
@@ -131,7 +133,12 @@ class RowShifter:
     def shift(self, shifts, columns=None):
         """Return ``out(x) = strip(x + shift)``, optionally only the given column slice."""
         shifts = np.asarray(shifts, dtype=self.x.dtype).reshape(-1, 1, 1)
-        phase = np.exp((2j * np.pi * self.freqs).astype(self.spectrum.dtype) * shifts)
+        omega = (2j * np.pi * self.freqs).astype(self.spectrum.dtype)
+        if self.compiled:
+            from st_stereo.core.kernels import shift_phases
+            phase = shift_phases(omega.imag, shifts)[:, None, :]
+        else:
+            phase = np.exp(omega * shifts)
         shifted = sfft.irfft(self.spectrum * phase, n=self.width, axis=-1, workers=1)
         x = self.x
         if columns is not None:

@@ -81,6 +81,78 @@ def lades_similarity_volume(left_moments, right_moments, disparities, window, ti
     return out
 
 
+def cross_power_spectra(left_spectra, right_spectra, mask):
+    """Compiled counterpart of ``subpixel.poc_from_spectra`` before its inverse FFT."""
+    right = np.ascontiguousarray(right_spectra, dtype=np.complex128)
+    out = np.empty_like(right)
+    _compiled().cross_power(np.ascontiguousarray(left_spectra, dtype=np.complex128), right,
+                            np.ascontiguousarray(mask, dtype=np.float32), out)
+    return out
+
+
+def shift_phases(omega, shifts):
+    """Compiled counterpart of the phase ramps of ``fourier.RowShifter.shift``, (n, F)."""
+    shifts = np.ascontiguousarray(shifts, dtype=np.float32).reshape(-1)
+    out = np.empty((len(shifts), len(omega)), dtype=np.complex64)
+    _compiled().shift_phases(np.ascontiguousarray(omega, dtype=np.float32), shifts, out)
+    return out
+
+
+def poc_peak_fits(surfaces, band_ratio):
+    """
+    Compiled counterpart of the peak search and fit of ``subpixel._poc_offsets``.
+
+    Returns ``(delta, denominator, inside, peak_value, lag)`` per surface.
+    """
+    surfaces = np.ascontiguousarray(surfaces, dtype=np.float64)
+    n = len(surfaces)
+    delta, denominator, peak_value = np.empty(n), np.empty(n), np.empty(n)
+    inside = np.empty(n, dtype=bool)
+    lag = np.empty(n, dtype=np.int64)
+    _compiled().poc_peak_fits(surfaces, float(band_ratio), delta, denominator, inside,
+                              peak_value, lag)
+    return delta, denominator, inside, peak_value, lag
+
+
+def feature_candidates(volume, candidates, inside, admissible, disparities, y, x, exclusion):
+    """
+    Compiled best candidate and runner-up of each feature (``rough_matching``).
+
+    Returns ``(best index, best similarity, runner-up similarity)`` per feature (float64
+    values of the float32 volume).
+    """
+    n = len(y)
+    best_index = np.empty(n, dtype=np.int64)
+    best_value, runner_up = np.empty(n), np.empty(n)
+    _compiled().feature_candidates(
+        np.ascontiguousarray(volume, dtype=np.float32), np.ascontiguousarray(candidates),
+        np.ascontiguousarray(inside), np.ascontiguousarray(admissible),
+        np.ascontiguousarray(disparities, dtype=np.int64), np.ascontiguousarray(y, np.int64),
+        np.ascontiguousarray(x, np.int64), int(exclusion), best_index, best_value, runner_up)
+    return best_index, best_value, runner_up
+
+
+def left_right_best(volume, valid_left, disparities, y, x_right):
+    """Compiled best left disparity of each matched right pixel (``left_right_consistent``)."""
+    out = np.empty(len(y), dtype=np.int64)
+    _compiled().left_right_best(
+        np.ascontiguousarray(volume, dtype=np.float32), np.ascontiguousarray(valid_left),
+        np.ascontiguousarray(disparities, dtype=np.int64), np.ascontiguousarray(y, np.int64),
+        np.ascontiguousarray(x_right, np.int64), out)
+    return out
+
+
+def continuity_medians(grid, y, x, radius):
+    """Compiled neighbour count and median disparity of each match (``continuity_consistent``)."""
+    count = np.empty(len(y), dtype=np.int64)
+    median = np.empty(len(y))
+    _compiled().continuity_medians(np.ascontiguousarray(grid, dtype=np.float64),
+                                   np.ascontiguousarray(y, np.int64),
+                                   np.ascontiguousarray(x, np.int64), int(radius), count,
+                                   median)
+    return count, median
+
+
 def warm_up():
     """Compile (or load) every kernel now; returns the seconds it took."""
     start = time.perf_counter()
@@ -89,4 +161,15 @@ def warm_up():
                                         np.zeros((1, 2), np.float32), np.zeros(2), 1e-4, 0.5,
                                         10.0)
         lades_similarity_volume(np.ones((4, 4)), np.ones((4, 4)), np.arange(2), 3, 1e-12)
+        spectra = np.ones((1, 9, 5), np.complex128)
+        cross_power_spectra(spectra, spectra, np.ones((9, 5), np.float32))
+        poc_peak_fits(np.ones((1, 9, 9)), 1.0)
+        shift_phases(np.ones(11, np.float32), np.zeros(1, np.float32))
+        volume = np.ones((2, 4, 4), np.float32)
+        mask = np.ones((4, 4), dtype=bool)
+        index = np.zeros(1, np.int64)
+        feature_candidates(volume, mask, mask, np.ones((2, 1, 1), dtype=bool), np.arange(2),
+                           index, index, 1)
+        left_right_best(volume, mask, np.arange(2), index, index)
+        continuity_medians(np.zeros((4, 4)), index, index, 1)
     return time.perf_counter() - start

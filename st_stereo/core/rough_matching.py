@@ -14,8 +14,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from st_stereo.core.kernels import lades_similarity_volume as compiled_lades_similarity_volume, \
-    use_compiled
+import st_stereo.core.kernels as kernels
 
 TINY = 1e-12
 
@@ -262,14 +261,18 @@ def enforce_uniqueness(y, x_left, x_right, similarity, tolerance):
         lambda first, second: np.abs(x_right[second] - x_right[first]) < tolerance)
 
 
-def left_right_consistent(volume, valid_left, disparities, y, x_right, disparity, tolerance):
+def left_right_consistent(volume, valid_left, disparities, y, x_right, disparity, tolerance,
+                          compiled=False):
     """
     Left-right check: the best left pixel for the matched right pixel is the original one.
 
     For the right pixel (y, x_r), the left candidates are (y, x_r + d'); their similarity is
     ``volume[d', y, x_r + d']``. The match survives when the best d' is within ``tolerance``
-    of its own disparity.
+    of its own disparity. ``compiled``: the same search by a numba kernel.
     """
+    if compiled:
+        best = kernels.left_right_best(volume, valid_left, disparities, y, x_right)
+        return np.abs(best - disparity) <= tolerance
     rows, cols = valid_left.shape
     x_candidates = x_right[:, None] + disparities[None, :]
     inside = x_candidates < cols
@@ -299,12 +302,14 @@ def ordering_consistent(y, x_left, x_right, similarity):
         y, x_left, similarity, lambda first, second: x_right[second] < x_right[first])
 
 
-def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_neighbours):
+def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_neighbours,
+                          compiled=False):
     """
     Continuity: a disparity must be close to the median of its neighbours' (paper 2.3).
 
     The neighbourhood is the (2 radius + 1)^2 square around the left feature, the match
     itself excluded; matches with fewer than ``min_neighbours`` neighbours are kept.
+    ``compiled``: the medians by a numba kernel.
 
     Returns
     -------
@@ -314,6 +319,9 @@ def continuity_consistent(shape, y, x_left, disparity, radius, max_jump, min_nei
     rows, cols = shape
     grid = np.full((rows + 2 * radius, cols + 2 * radius), np.nan)
     grid[y + radius, x_left + radius] = disparity
+    if compiled:
+        count, median = kernels.continuity_medians(grid, y, x_left, radius)
+        return (count < min_neighbours) | (np.abs(disparity - median) <= max_jump)
     side = 2 * radius + 1
     dy, dx = np.mgrid[0:side, 0:side]
     neighbours = grid[y[:, None] + dy.ravel()[None], x_left[:, None] + dx.ravel()[None]]
@@ -366,9 +374,10 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
         rejected['no_candidate'] = int(left_features.sum())
         empty = np.zeros(0, dtype=np.int64)
         return RoughMatches(empty, empty, empty, np.zeros(0), rejected, np.zeros(0))
-    if use_compiled(config.kernels):
-        volume = compiled_lades_similarity_volume(left_moments, right_moments, disparities,
-                                                  config.similarity_window, TINY)
+    compiled = kernels.use_compiled(config.kernels)
+    if compiled:
+        volume = kernels.lades_similarity_volume(left_moments, right_moments, disparities,
+                                                 config.similarity_window, TINY)
     else:
         volume = lades_similarity_volume(left_moments, right_moments, disparities,
                                          config.similarity_window)
@@ -381,31 +390,42 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
     candidates = (right_moments > candidate_level) & inside
     if right_valid is not None:
         candidates &= right_valid
-    valid = shifted_stack(candidates, disparities) & admissible
-    best, best_value = _best_candidates(volume, valid)
-
     y, x_left = np.nonzero(left_features)
-    disparity = disparities[best[y, x_left]]
-    similarity = best_value[y, x_left].astype(np.float64)
+    if compiled:
+        # The same candidates and rivals, for the features only (st_stereo.core.kernels).
+        best, similarity, runner_up = kernels.feature_candidates(
+            volume, candidates, inside, admissible, disparities, y, x_left, 1)
+        with np.errstate(invalid='ignore'):      # -inf - -inf: features without candidate
+            distinctiveness = similarity - runner_up
+    else:
+        valid = shifted_stack(candidates, disparities) & admissible
+        best_of_pixel, best_value = _best_candidates(volume, valid)
+        best = best_of_pixel[y, x_left]
+        similarity = best_value[y, x_left].astype(np.float64)
+        distinctiveness = None
+    disparity = disparities[best]
     has_candidate = np.isfinite(similarity)
     rejected['no_candidate'] = int((~has_candidate).sum())
-    matches = RoughMatches(y, x_left, disparity, similarity, rejected).subset(has_candidate)
+    matches = RoughMatches(y, x_left, disparity, similarity, rejected,
+                           distinctiveness).subset(has_candidate)
 
     def apply(name, keep):
         rejected[name] = int((~keep).sum())
         return matches.subset(keep)
 
     matches = apply('similarity', matches.similarity >= config.min_similarity)
-    searchable = shifted_stack(inside, disparities) & admissible
-    runner_up = runner_up_similarity(volume, valid, searchable, best, matches.y, matches.x_left)
-    matches.distinctiveness = matches.similarity - runner_up
+    if not compiled:
+        searchable = shifted_stack(inside, disparities) & admissible
+        runner_up = runner_up_similarity(volume, valid, searchable, best_of_pixel, matches.y,
+                                         matches.x_left)
+        matches.distinctiveness = matches.similarity - runner_up
     if config.min_distinctiveness > 0:
         matches = apply('ambiguous', matches.distinctiveness >= config.min_distinctiveness)
     if config.left_right_check:
         valid_left = left_moments > candidate_level
         matches = apply('left_right', left_right_consistent(
             volume, valid_left, disparities, matches.y, matches.x_right, matches.disparity,
-            config.left_right_tolerance))
+            config.left_right_tolerance, compiled))
     if config.ordering:
         matches = apply('ordering', ordering_consistent(matches.y, matches.x_left,
                                                         matches.x_right, matches.similarity))
@@ -413,5 +433,5 @@ def rough_match(left_moments, right_moments, left_features, config, prior=None,
         matches = apply('continuity', continuity_consistent(
             (rows, cols), matches.y, matches.x_left, matches.disparity.astype(np.float64),
             config.continuity_radius, config.continuity_max_jump,
-            config.continuity_min_neighbours))
+            config.continuity_min_neighbours, compiled))
     return matches

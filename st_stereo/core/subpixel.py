@@ -25,6 +25,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from st_stereo.core.fourier import RowShifter
+import st_stereo.core.kernels as kernels
 
 SUBPIXEL_REJECTION_KEYS = ('subpixel_degenerate', 'subpixel_edge', 'subpixel_range')
 
@@ -85,17 +86,22 @@ def window_spectra(windows, hann=True):
     return sfft.rfft2(windows, workers=1)
 
 
-def poc_from_spectra(left_spectra, right_spectra, band='full'):
+def poc_from_spectra(left_spectra, right_spectra, band='full', compiled=False):
     """
     POC surfaces ``real(ifft2(R))``, ``R = F_R conj(F_L) / |.|`` (eqs. 10-11), zero lag first.
 
     The spectra are rfft2 half spectra of real windows; the surface is real (unshifted:
-    lag ``k`` at index ``k mod W``).
+    lag ``k`` at index ``k mod W``). ``compiled``: ``R`` by the numba kernel (the same
+    arithmetic, ``st_stereo.core.kernels``).
     """
     size = left_spectra.shape[-2]
+    half = band_half_width(size, band)
+    if compiled:
+        mask = _band_mask(size, half)
+        cross = kernels.cross_power_spectra(left_spectra, right_spectra, mask)
+        return sfft.irfft2(cross, s=(size, size), workers=1)
     cross = right_spectra * np.conj(left_spectra)
     cross /= np.maximum(np.abs(cross), np.float32(1e-20))
-    half = band_half_width(size, band)
     if half < size // 2:
         cross *= _band_mask(size, half)
     return sfft.irfft2(cross, s=(size, size), workers=1)
@@ -208,9 +214,15 @@ def extract_strips(image, y, x, size, margin):
 
 
 def _poc_offsets(left_spectra, right_windows, config):
+    # Compiled for the double-precision spectra of Hann-windowed windows (the default); the
+    # single-precision ones of poc_hann=False keep numpy's float32 arithmetic.
+    compiled = kernels.use_compiled(config.kernels) and left_spectra.dtype == np.complex128
     surfaces = poc_from_spectra(left_spectra, window_spectra(right_windows, config.poc_hann),
-                                config.poc_band)
+                                config.poc_band, compiled)
     n, size, _ = surfaces.shape
+    band_ratio = (2 * band_half_width(size, config.poc_band) + 1) / size
+    if compiled:
+        return kernels.poc_peak_fits(surfaces, band_ratio)
     half = size // 2
     flat_peak = surfaces.reshape(n, -1).argmax(axis=1)
     peak_row, peak_col = np.divmod(flat_peak, size)
@@ -221,7 +233,6 @@ def _poc_offsets(left_spectra, right_windows, config):
     peak_value = profiles[np.arange(n), peak_col]
     inside = (peak_col >= 3) & (peak_col <= size - 4)
     safe_peak = np.where(inside, peak_col, size // 2)
-    band_ratio = (2 * band_half_width(size, config.poc_band) + 1) / size
     delta, denominator = nagashima_peak_offset(profiles, safe_peak, band_ratio)
     lag = peak_col - half          # integer lag of the peak; the model's delta is about -lag
     return delta, denominator, inside, peak_value, lag
@@ -266,7 +277,7 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
         total = delta
     else:
         strips = extract_strips(right_image, y, x_right, size, RECENTRE_MARGIN)
-        shifter = RowShifter(strips, np.float32)
+        shifter = RowShifter(strips, np.float32, kernels.use_compiled(config.kernels))
         centre = slice(RECENTRE_MARGIN, RECENTRE_MARGIN + size)
         total = np.zeros(n)
         for iteration in range(iterations):
