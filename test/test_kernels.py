@@ -71,7 +71,7 @@ def test_a_second_process_loads_every_kernel_from_the_disk_cache(tmp_path):
     import sys
     names = sorted(('orientation_energy', 'moments', 'lades_volume', 'cross_power',
                     'shift_phases', 'poc_peak_fits', 'feature_candidates', 'left_right_best',
-                    'continuity_medians'))
+                    'continuity_medians', 'deramped_strips', 'reramped_columns'))
     script = (
         f'KERNELS = {names!r}\n'
         'from st_stereo.core import kernels\n'

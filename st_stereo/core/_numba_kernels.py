@@ -373,3 +373,53 @@ def continuity_medians(grid, ys, xs, radius, out_count, out_median):
                     count += 1
         out_count[i] = count
         out_median[i] = 0.5 * (values[(count - 1) // 2] + values[count // 2]) if count else 0.0
+
+
+@jit
+def deramped_strips(image, ys, xs, size, margin, out_strips, out_periodic, out_first,
+                    out_slope):
+    """
+    Gather the strips of ``subpixel.extract_strips`` in float32, and their de-ramped copies.
+
+    ``size`` rows by ``size + 2 margin`` columns centred at (y, x), columns outside the image
+    reflected symmetrically (numpy's ``pad(mode='symmetric')``); then, as
+    ``fourier.RowShifter`` computes them in float32: ``first`` (the first column),
+    ``slope = (last - first) / (width - 1)`` and ``periodic = strip - (first + slope x)``.
+    """
+    cols = image.shape[1]
+    half = size // 2
+    width = size + 2 * margin
+    steps = np.float32(width - 1)
+    for i in range(len(ys)):
+        for r in range(size):
+            row = ys[i] - half + r
+            for k in range(width):
+                c = xs[i] - half - margin + k
+                if c < 0:
+                    c = -c - 1
+                elif c >= cols:
+                    c = 2 * cols - c - 1
+                out_strips[i, r, k] = np.float32(image[row, c])
+            first = out_strips[i, r, 0]
+            slope = (out_strips[i, r, width - 1] - first) / steps
+            out_first[i, r] = first
+            out_slope[i, r] = slope
+            for k in range(width):
+                out_periodic[i, r, k] = out_strips[i, r, k] - (first + slope * np.float32(k))
+
+
+@jit
+def reramped_columns(shifted, first, slope, shifts, start, out):
+    """
+    ``shifted[..., start:start + W] + first + slope (x + shift)`` (``RowShifter.shift``).
+
+    float32, in numpy's order: ``(shifted + first) + slope * (x + shift)``; ``out`` (n, rows,
+    W).
+    """
+    n, rows, count = out.shape
+    for i in range(n):
+        for r in range(rows):
+            for k in range(count):
+                x = np.float32(start + k)
+                out[i, r, k] = (shifted[i, r, start + k] + first[i, r]) + \
+                    slope[i, r] * (x + shifts[i])

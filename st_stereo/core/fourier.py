@@ -116,17 +116,22 @@ class RowShifter:
     Strips prepared once for many Fourier shifts (see ``fourier_shift_rows``).
 
     The de-ramped spectrum is computed once; each ``shift`` call costs one inverse FFT.
-    ``compiled``: the phase ramp by a numba kernel (``st_stereo.core.kernels``, float32 only).
+    ``compiled``: the phase ramp and the ramp's return by numba kernels
+    (``st_stereo.core.kernels``, float32 only, the same arithmetic). ``deramped``: the
+    strips' ``(periodic, first, slope)`` when already computed (``kernels.deramped_strips``).
     """
 
-    def __init__(self, strips, dtype=np.float64, compiled=False):
+    def __init__(self, strips, dtype=np.float64, compiled=False, deramped=None):
         strips = np.asarray(strips, dtype=dtype)
         self.compiled = compiled and strips.dtype == np.float32
         self.width = strips.shape[-1]
         self.x = np.arange(self.width, dtype=dtype)
-        self.first = strips[..., :1]
-        self.slope = (strips[..., -1:] - self.first) / (self.width - 1)
-        periodic = strips - (self.first + self.slope * self.x)
+        if deramped is None:
+            self.first = strips[..., :1]
+            self.slope = (strips[..., -1:] - self.first) / (self.width - 1)
+            periodic = strips - (self.first + self.slope * self.x)
+        else:
+            periodic, self.first, self.slope = deramped
         self.spectrum = sfft.rfft(periodic, axis=-1, workers=1)
         self.freqs = sfft.rfftfreq(self.width)
 
@@ -135,11 +140,13 @@ class RowShifter:
         shifts = np.asarray(shifts, dtype=self.x.dtype).reshape(-1, 1, 1)
         omega = (2j * np.pi * self.freqs).astype(self.spectrum.dtype)
         if self.compiled:
-            from st_stereo.core.kernels import shift_phases
-            phase = shift_phases(omega.imag, shifts)[:, None, :]
+            import st_stereo.core.kernels as kernels
+            phase = kernels.shift_phases(omega.imag, shifts)[:, None, :]
         else:
             phase = np.exp(omega * shifts)
         shifted = sfft.irfft(self.spectrum * phase, n=self.width, axis=-1, workers=1)
+        if self.compiled and columns is not None:
+            return kernels.reramped_columns(shifted, self.first, self.slope, shifts, columns)
         x = self.x
         if columns is not None:
             shifted, x = shifted[..., columns], x[columns]

@@ -98,6 +98,37 @@ def shift_phases(omega, shifts):
     return out
 
 
+def deramped_strips(image, y, x, size, margin):
+    """
+    Compiled strips of ``subpixel.extract_strips`` (float32) and ``RowShifter``'s de-ramping.
+
+    Returns ``(strips, periodic, first, slope)``: (n, size, size + 2 margin) twice, then
+    (n, size, 1) twice.
+    """
+    n, width = len(y), size + 2 * margin
+    strips = np.empty((n, size, width), dtype=np.float32)
+    periodic = np.empty_like(strips)
+    first = np.empty((n, size, 1), dtype=np.float32)
+    slope = np.empty_like(first)
+    _compiled().deramped_strips(np.ascontiguousarray(image, dtype=np.float64),
+                                np.ascontiguousarray(y, np.int64),
+                                np.ascontiguousarray(x, np.int64), int(size), int(margin),
+                                strips, periodic, first[..., 0], slope[..., 0])
+    return strips, periodic, first, slope
+
+
+def reramped_columns(shifted, first, slope, shifts, columns):
+    """Compiled ramp of ``RowShifter.shift`` put back on the ``columns`` slice, float32."""
+    shifted = np.ascontiguousarray(shifted, dtype=np.float32)
+    start, stop, _ = columns.indices(shifted.shape[-1])
+    out = np.empty(shifted.shape[:-1] + (stop - start,), dtype=np.float32)
+    _compiled().reramped_columns(shifted, np.ascontiguousarray(first[..., 0]),
+                                 np.ascontiguousarray(slope[..., 0]),
+                                 np.ascontiguousarray(shifts, np.float32).reshape(-1), start,
+                                 out)
+    return out
+
+
 def poc_peak_fits(surfaces, band_ratio):
     """
     Compiled counterpart of the peak search and fit of ``subpixel._poc_offsets``.
@@ -165,6 +196,9 @@ def warm_up():
         cross_power_spectra(spectra, spectra, np.ones((9, 5), np.float32))
         poc_peak_fits(np.ones((1, 9, 9)), 1.0)
         shift_phases(np.ones(11, np.float32), np.zeros(1, np.float32))
+        strips, _, first, slope = deramped_strips(np.ones((9, 9)), np.array([4]),
+                                                  np.array([4]), 9, 6)
+        reramped_columns(strips, first, slope, np.zeros(1, np.float32), slice(6, 15))
         volume = np.ones((2, 4, 4), np.float32)
         mask = np.ones((4, 4), dtype=bool)
         index = np.zeros(1, np.int64)

@@ -276,8 +276,13 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
                                                                  config)
         total = delta
     else:
-        strips = extract_strips(right_image, y, x_right, size, RECENTRE_MARGIN)
-        shifter = RowShifter(strips, np.float32, kernels.use_compiled(config.kernels))
+        if kernels.use_compiled(config.kernels):
+            strips, *deramped = kernels.deramped_strips(right_image, y, x_right, size,
+                                                        RECENTRE_MARGIN)
+            shifter = RowShifter(strips, np.float32, True, deramped)
+        else:
+            strips = extract_strips(right_image, y, x_right, size, RECENTRE_MARGIN)
+            shifter = RowShifter(strips, np.float32)
         centre = slice(RECENTRE_MARGIN, RECENTRE_MARGIN + size)
         total = np.zeros(n)
         for iteration in range(iterations):
