@@ -288,7 +288,9 @@ def refine_subpixel_poc(left_image, right_image, y, x_left, disparity, config):
         for iteration in range(iterations):
             # out(u) = strip(u - total): undo the estimated shift, leaving the residual.
             if iteration == 0:
-                right_windows = strips[:, :, centre]
+                # Contiguous, as the numpy path's float32 copy is (the windows' mean then
+                # sums in the same order).
+                right_windows = np.ascontiguousarray(strips[:, :, centre], dtype=np.float32)
             else:
                 right_windows = shifter.shift(-total, centre)
             delta, denominator, inside, peak_value, lag = _poc_offsets(
