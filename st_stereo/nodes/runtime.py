@@ -5,6 +5,7 @@ Also the QoS every publisher uses and the hand-over of work to a node's worker t
 """
 
 import contextlib
+import os
 import threading
 
 import rclpy
@@ -46,6 +47,36 @@ def until_shutdown(context=None):
             raise
 
 
+EXECUTOR_VARIABLE = 'ST_STEREO_EXECUTOR'
+EXECUTOR_CHOICES = ('events', 'single')
+
+
+def node_executor(context=None):
+    """
+    Return the executor a node process spins on.
+
+    rclpy's ``EventsExecutor`` (``rclpy.experimental``, where this rclpy has it) by default:
+    the ``SingleThreadedExecutor`` rebuilds its wait set from every entity of the node at each
+    wake-up, in Python (measured, the matcher on one rig replaying the recording: 5.5 ms of
+    CPU per pair in the executor, 1.5 ms with the events executor). ``ST_STEREO_EXECUTOR=single``
+    in the environment chooses the ``SingleThreadedExecutor``, as does an rclpy without the
+    events executor.
+    """
+    choice = os.environ.get(EXECUTOR_VARIABLE, 'events')
+    if choice not in EXECUTOR_CHOICES:
+        raise ValueError(f'{EXECUTOR_VARIABLE}: expected one of {", ".join(EXECUTOR_CHOICES)}, '
+                         f'got {choice!r}')
+    if choice == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor(context=context)
+
+
 def spin_node(factory, args=None):
     """
     Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown.
@@ -59,6 +90,7 @@ def spin_node(factory, args=None):
     import sys
     rclpy.init(args=args)
     try:
+        executor = node_executor()
         node = factory()
     except (ValueError, OSError) as error:
         print(f'{sys.argv[0].rsplit("/", 1)[-1]}: cannot start: {error}', file=sys.stderr)
@@ -66,7 +98,11 @@ def spin_node(factory, args=None):
         return 2
     try:
         with until_shutdown():
-            rclpy.spin(node)
+            executor.add_node(node)
+            # Not executor.spin(): the events executor's does not return when a signal shuts
+            # the context down (rclpy 7.1.6); the timeout bounds the wait for that to 0.2 s.
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=0.2)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
