@@ -401,3 +401,44 @@ def test_a_runtime_error_is_the_shutdown_only_once_the_context_is_shut_down():
             raise RuntimeError("Unable to convert call argument '0' to Python object")
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_node_processes_spin_on_the_events_executor_unless_told_otherwise(ros, monkeypatch):
+    context = ros[0]
+    from rclpy.executors import SingleThreadedExecutor
+    from st_stereo.nodes.runtime import EXECUTOR_VARIABLE, node_executor
+    monkeypatch.delenv(EXECUTOR_VARIABLE, raising=False)
+    try:
+        from rclpy.experimental import EventsExecutor  # noqa: F401
+        expected = 'EventsExecutor'
+    except ImportError:                                 # an rclpy without it falls back
+        expected = 'SingleThreadedExecutor'
+    assert type(node_executor(context)).__name__ == expected
+    monkeypatch.setenv(EXECUTOR_VARIABLE, 'single')
+    assert isinstance(node_executor(context), SingleThreadedExecutor)
+    monkeypatch.setenv(EXECUTOR_VARIABLE, 'fast')
+    with pytest.raises(ValueError, match='ST_STEREO_EXECUTOR: expected one of events, '
+                                         'single, got .fast.'):
+        node_executor(context)
+
+
+@pytest.mark.parametrize('signal_name', ['SIGINT', 'SIGTERM'])
+def test_a_node_process_ends_cleanly_on_a_signal(signal_name):
+    # The events executor's spin() never returned after a signal's shutdown (rclpy 7.1.6):
+    # the process hung until killed, and launch would have waited for it.
+    import signal
+    import subprocess
+    import sys
+    import time
+    process = subprocess.Popen(
+        [sys.executable, '-c', 'import sys; from st_stereo.nodes.rectifier_node import main; '
+         'sys.exit(main())'], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(3.0)                                 # imported and spinning
+        assert process.poll() is None
+        process.send_signal(getattr(signal, signal_name))
+        assert process.wait(timeout=15) == 0, process.stderr.read()
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()

@@ -10,7 +10,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
@@ -21,7 +20,7 @@ from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.people_messages import DETECTION_FIELDS
 from st_stereo.nodes.people_node import PeopleNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.nodes.runtime import until_shutdown, with_default_namespace
+from st_stereo.nodes.runtime import node_executor, spin_until_shutdown, with_default_namespace
 
 
 def build_nodes(args=None):
@@ -106,12 +105,11 @@ def main(args=None):
     """Run the pipeline until Ctrl-C; exits non-zero when the driver could not recover."""
     rclpy.init(args=args)
     nodes = build_nodes()
-    executor = SingleThreadedExecutor()
+    executor = node_executor()
     for node in nodes:
         executor.add_node(node)
     try:
-        with until_shutdown():
-            executor.spin()
+        spin_until_shutdown(executor)
     finally:
         for node in nodes:
             node.destroy_node()

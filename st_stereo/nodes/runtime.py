@@ -77,6 +77,18 @@ def node_executor(context=None):
     return SingleThreadedExecutor(context=context)
 
 
+def spin_until_shutdown(executor):
+    """
+    Spin ``executor`` until Ctrl-C or a shutdown of rclpy's default context (quietly).
+
+    Not ``executor.spin()``: the events executor's does not return when a signal shuts the
+    context down (rclpy 7.1.6); the timeout bounds the wait for that to 0.2 s.
+    """
+    with until_shutdown():
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.2)
+
+
 def spin_node(factory, args=None):
     """
     Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown.
@@ -97,12 +109,8 @@ def spin_node(factory, args=None):
         rclpy.try_shutdown()
         return 2
     try:
-        with until_shutdown():
-            executor.add_node(node)
-            # Not executor.spin(): the events executor's does not return when a signal shuts
-            # the context down (rclpy 7.1.6); the timeout bounds the wait for that to 0.2 s.
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=0.2)
+        executor.add_node(node)
+        spin_until_shutdown(executor)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
