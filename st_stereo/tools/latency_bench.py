@@ -12,7 +12,8 @@ the three nodes as separate processes, the monitor here. Two latencies per point
   monitor's receipt of ``left/image_raw``, a transport later), i.e. what the rectifier, the
   matcher and the transports add.
 
-CPU is the CPU time of the node processes over the run, in % of one core.
+CPU is the CPU time of the node processes over the scored clouds (not their start-up), in %
+of one core; the drivers start once the rest of their rig is up.
 """
 
 import contextlib
