@@ -257,3 +257,37 @@ def test_a_pair_without_pair_info_leaves_the_next_one_without_a_previous_pair(pe
                                right=frames['right']) is result
     assert compensator.counts['pairs_without_skew'] == 1
     assert compensator.counts['pairs_without_previous'] == 2
+
+
+@pytest.mark.parametrize('drop_untracked', [True, False])
+def test_a_window_that_changed_but_cannot_be_tracked_is_dropped_and_counted(
+        people_80x60, drop_untracked):
+    # The previous frame's right half is another scene (something moved in that no search
+    # finds): the features there changed beyond the noise, their track fails, and their
+    # velocity, hence their skew error, is unknown. They are dropped (counted), or kept
+    # uncorrected when asked; the static left half keeps its disparities exactly.
+    texture = thermal(people_80x60)
+    left = noisy(texture, 2)
+    right = noisy(fourier_shift_image_x(texture, DISPARITY), 3)
+    result = StereoMatcher(STConfig()).match(left, right)
+    previous = noisy(texture, 1)
+    other = thermal(np.random.default_rng(7).normal(size=texture.shape))
+    previous[:, 40:] = other[:, 40:]
+    compensator = SkewCompensator()
+    compensator.remember(previous, 0.0)
+    corrected = compensator.correct(result, left, PERIOD_S, -0.04,
+                                    drop_untracked=drop_untracked)
+    untracked = compensator.counts['features_untracked']
+    far_right = result.x_left >= 50                    # whose whole window changed
+    assert untracked >= far_right.sum() > 20
+    assert compensator.counts['rejected_skew_untracked'] == (untracked if drop_untracked else 0)
+    assert len(corrected) == len(result) - compensator.counts['rejected_skew_untracked']
+    kept = np.isin(result.x_left * 1000 + result.y, corrected.x_left * 1000 + corrected.y)
+    # (a few random windows of the other scene correlate above min_ncc: tracked, moving)
+    assert kept[far_right].mean() < 0.2 if drop_untracked else kept.all()
+    static = result.x_left < 30                        # whose whole window is unchanged
+    assert kept[static].all()
+    np.testing.assert_array_equal(
+        corrected.disparity[np.isin(corrected.x_left * 1000 + corrected.y,
+                                    (result.x_left * 1000 + result.y)[static])],
+        result.disparity[static])

@@ -133,9 +133,15 @@ class STConfig:
     # --- 5. Camera skew (two free-running cameras; st_stereo.core.skew) --------------------
     skew_compensation: bool = _field(True, 'correct the disparities of moving features for '
                                      'the camera skew of the pair (t_right - t_left, from '
-                                     'pair_info) by their image velocity on the left camera; '
-                                     'a feature whose window did not change beyond the noise '
-                                     'is not touched (docs/skew.md)')
+                                     'pair_info) by their image velocity on the camera whose '
+                                     'frames bracket the instant of the other; a feature whose '
+                                     'window did not change beyond the noise is not touched '
+                                     '(docs/skew.md)')
+    skew_drop_untracked: bool = _field(True, 'with skew_compensation, drop the matches whose '
+                                       'window changed between the frames but could not be '
+                                       'tracked: they move at an unknown velocity, so their '
+                                       'skew error is unknown (counted as '
+                                       'skew rejected_skew_untracked)')
 
     # --- 6. Implementation ---------------------------------------------------------------
     kernels: str = _field('auto', 'hot-path implementation: compiled (numba kernels), numpy '

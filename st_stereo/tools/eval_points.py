@@ -63,7 +63,8 @@ class PairMatching:
         result = self.matcher.match(left, right, **self.rectifier.valid_keywords())
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
-                                       self.matcher.disparity_bounds(), right=right)
+                                       self.matcher.disparity_bounds(), right=right,
+                                       drop_untracked=self.config.skew_drop_untracked)
         return result
 
 
