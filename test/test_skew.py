@@ -291,3 +291,38 @@ def test_a_window_that_changed_but_cannot_be_tracked_is_dropped_and_counted(
         corrected.disparity[np.isin(corrected.x_left * 1000 + corrected.y,
                                     (result.x_left * 1000 + result.y)[static])],
         result.disparity[static])
+
+
+@pytest.mark.parametrize('right_velocity, agreement_px, dropped', [
+    (20.0, 0.5, False),       # both cameras see 20 px/s: the correction is trusted
+    (40.0, 0.5, True),        # 20 against 40 px/s over 50 ms: 1 px apart
+    (40.0, 0.0, False)])      # the check off
+def test_a_match_whose_two_cameras_disagree_on_its_motion_is_dropped(
+        people_80x60, right_velocity, agreement_px, dropped):
+    # The left camera's frames show the scene moving at 20 px/s, the right camera's at
+    # right_velocity: where they disagree the correction v_x skew is uncertain by
+    # |v_left - v_right| skew, more than agreement_px, and the moving matches go (counted).
+    skew_s = 0.05
+    texture = thermal(people_80x60)
+
+    def camera(t, disparity, velocity, seed):
+        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    left, right = camera(0.0, 0.0, 20.0, 2), camera(skew_s, DISPARITY, right_velocity, 3)
+    result = StereoMatcher(STConfig()).match(left, right)
+    compensator = SkewCompensator()
+    compensator.correct(result, camera(-PERIOD_S, 0.0, 20.0, 4), -PERIOD_S, skew_s,
+                        right=camera(skew_s - PERIOD_S, DISPARITY, right_velocity, 5))
+    corrected = compensator.correct(result, left, 0.0, skew_s, right=right,
+                                    agreement_px=agreement_px)
+    counts = compensator.counts
+    assert counts['pairs_tracked_on_right'] == 1
+    assert counts['features_moving'] > 0.8 * len(result)
+    assert counts['features_checked_on_both'] == (0 if agreement_px == 0 else
+                                                  pytest.approx(counts['features_moving'],
+                                                                rel=0.1))
+    rejected = counts['rejected_skew_disagreement']
+    if dropped:
+        assert rejected > 0.8 * counts['features_moving']
+    else:
+        assert rejected < 0.05 * counts['features_moving']
+    assert len(corrected) == len(result) - rejected - counts['rejected_skew_untracked']

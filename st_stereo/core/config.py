@@ -142,6 +142,12 @@ class STConfig:
                                        'tracked: they move at an unknown velocity, so their '
                                        'skew error is unknown (counted as '
                                        'skew rejected_skew_untracked)')
+    skew_agreement_px: float = _field(0.5, 'with skew_compensation, track the moving features '
+                                      'on both cameras and drop a match whose two '
+                                      'displacements over the skew (v_x * skew) differ by '
+                                      'more than this, pixels (counted as skew '
+                                      'rejected_skew_disagreement); 0 disables',
+                                      low=0.0, high=10.0)
 
     # --- 6. Implementation ---------------------------------------------------------------
     kernels: str = _field('auto', 'hot-path implementation: compiled (numba kernels), numpy '

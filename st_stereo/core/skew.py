@@ -178,7 +178,8 @@ def skew_corrected_disparity(disparity, velocity_x, skew_s):
 SKEW_COUNT_KEYS = ('pairs_skew_compensated', 'pairs_without_skew', 'pairs_without_previous',
                    'pairs_calibration_changed', 'pairs_in_ffc', 'pairs_tracked_on_right',
                    'pairs_extrapolated', 'features_moving', 'features_untracked',
-                   'rejected_skew_range', 'rejected_skew_untracked')
+                   'rejected_skew_range', 'rejected_skew_untracked',
+                   'rejected_skew_disagreement', 'features_checked_on_both')
 
 
 @dataclasses.dataclass
@@ -206,14 +207,44 @@ def bracketing_motion(x_left, y, disparity, skew_s, left_frames, right_frames=No
 
     """
     if right_frames is not None and (skew_s > 0 or left_frames is None):
-        cols = np.shape(right_frames.current)[1]
-        x_right = np.clip(np.rint(np.asarray(x_left) - np.asarray(disparity)), 0, cols - 1)
-        return feature_motion(right_frames.previous, right_frames.current,
-                              x_right.astype(np.int64), y, right_frames.period_s), 'right'
+        return camera_motion(right_frames, 'right', x_left, y, disparity), 'right'
     if left_frames is None:
         raise ValueError('bracketing_motion: neither camera has two frames')
-    return feature_motion(left_frames.previous, left_frames.current, x_left, y,
-                          left_frames.period_s), 'left'
+    return camera_motion(left_frames, 'left', x_left, y, disparity), 'left'
+
+
+def camera_motion(frames, camera, x_left, y, disparity):
+    """
+    Track the features on one camera's frames (``feature_motion``).
+
+    On the left camera at ``x_left``; on the right one at the right pixel
+    ``rint(x_left - disparity)``, clipped to the image.
+    """
+    x = np.asarray(x_left)
+    if camera == 'right':
+        cols = np.shape(frames.current)[1]
+        x = np.clip(np.rint(x - np.asarray(disparity)), 0, cols - 1)
+    return feature_motion(frames.previous, frames.current, x.astype(np.int64), y,
+                          frames.period_s)
+
+
+def cameras_disagree(motion, other, skew_s, tolerance_px):
+    """
+    Flag the moving features whose displacement over the skew the two cameras disagree on.
+
+    ``motion`` is the bracketing camera's (``bracketing_motion``), ``other`` the other
+    camera's motion of the features ``motion.moving`` selects (same order). A feature is
+    flagged when both tracked it and ``|v_x - v_x_other| |skew_s| > tolerance_px``: the
+    correction ``v_x skew_s`` is then uncertain by more than the tolerance (a body part that
+    deforms, an occlusion boundary that slides, a window mixing two surfaces). Measured on
+    walk_across (skew +40 ms): 61 % of the moving matches with a disagreement above 16 px/s
+    (0.64 px) were 3-D outliers, 2.6 % of those below 2 px/s (docs/skew.md).
+    """
+    flagged = np.zeros(len(motion.moving), dtype=bool)
+    index = np.flatnonzero(motion.moving)
+    difference = np.abs(motion.velocity_x[index] - other.velocity_x) * abs(float(skew_s))
+    flagged[index] = other.tracked & (difference > tolerance_px)
+    return flagged
 
 
 class SkewCompensator:
@@ -263,7 +294,7 @@ class SkewCompensator:
         return CameraFrames(previous, np.asarray(current), period)
 
     def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None, right=None,
-                ffc=(False, False), drop_untracked=True):
+                ffc=(False, False), drop_untracked=True, agreement_px=0.5):
         """
         Return ``result`` with skew-corrected disparities and points (or unchanged).
 
@@ -272,6 +303,11 @@ class SkewCompensator:
         (``rejected_skew_untracked``): it moves at an unknown velocity, so its disparity carries
         an unknown ``v_x skew_s``. Measured on walk_across (skew +40 ms, stride 4): 195 of 3266
         matches, 31.8 % of them 3-D outliers against 6.9 % over all (docs/skew.md).
+
+        With ``agreement_px`` > 0 and both cameras' frames usable, the moving features are
+        also tracked on the other camera and a match whose two displacements over the skew
+        differ by more than ``agreement_px`` is dropped and counted
+        (``rejected_skew_disagreement``; ``cameras_disagree``).
         """
         left_frames = self._frames(self.previous, self.previous_time, left, left_time_s)
         right_frames = None
@@ -313,6 +349,16 @@ class SkewCompensator:
         disparity = skew_corrected_disparity(result.disparity, motion.velocity_x, skew_s)
         keep = ~untracked
         self.counts['rejected_skew_untracked'] += int(untracked.sum())
+        other_frames = left_frames if camera == 'right' else right_frames
+        if agreement_px > 0 and other_frames is not None and motion.moving.any():
+            moving = motion.moving
+            other = camera_motion(other_frames, 'left' if camera == 'right' else 'right',
+                                  result.x_left[moving], result.y[moving],
+                                  result.disparity[moving])
+            self.counts['features_checked_on_both'] += int(other.tracked.sum())
+            disagree = cameras_disagree(motion, other, skew_s, agreement_px)
+            self.counts['rejected_skew_disagreement'] += int(disagree.sum())
+            keep &= ~disagree
         if bounds is not None:
             inside = (disparity >= bounds[0]) & (disparity <= bounds[1])
             self.counts['rejected_skew_range'] += int((keep & ~inside).sum())

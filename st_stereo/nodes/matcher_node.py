@@ -203,7 +203,7 @@ class MatcherNode(Node):
                 time.monotonic() - self._waiting[0] > self.pair_info_wait:
             self._release_waiting()       # matched without skew compensation (counted)
 
-    def _compensate_skew(self, result, left, right, msg, model, bounds, drop_untracked):
+    def _compensate_skew(self, result, left, right, msg, model, bounds, config):
         stamp = _stamp_key(msg)
         # Without its pair_info a pair has neither a skew nor a left acquisition time (the
         # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
@@ -211,7 +211,8 @@ class MatcherNode(Node):
         with self._pair_times_lock:
             left_time, skew, ffc = self.pair_times.pop(stamp, (None, None, (False, False)))
         return self.skew.correct(result, left, left_time, skew, model, bounds, right=right,
-                                 ffc=ffc, drop_untracked=drop_untracked)
+                                 ffc=ffc, drop_untracked=config.skew_drop_untracked,
+                                 agreement_px=config.skew_agreement_px)
 
     def _model_for(self, left_info, right_info):
         # Built once per calibration, not per message (the rectifier's P rarely changes).
@@ -254,7 +255,7 @@ class MatcherNode(Node):
             if matcher.config.skew_compensation:
                 result = self._compensate_skew(result, left, right, left_msg, model,
                                                matcher.disparity_bounds(),
-                                               matcher.config.skew_drop_untracked)
+                                               matcher.config)
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = self.last_drop_reason = str(error)

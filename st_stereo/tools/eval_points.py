@@ -64,7 +64,8 @@ class PairMatching:
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
                                        self.matcher.disparity_bounds(), right=right,
-                                       drop_untracked=self.config.skew_drop_untracked)
+                                       drop_untracked=self.config.skew_drop_untracked,
+                                       agreement_px=self.config.skew_agreement_px)
         return result
 
 

@@ -245,7 +245,8 @@ def print_summary(driver, matcher, monitor, depth):
           f'{counts["pairs_extrapolated"]} extrapolated, {counts["pairs_in_ffc"]} in FFC, '
           f'{counts["pairs_calibration_changed"]} after a new calibration; '
           f'{counts["features_moving"]} moving features corrected, '
-          f'{counts["rejected_skew_untracked"]} dropped (changed, untracked)')
+          f'{counts["rejected_skew_untracked"]} dropped (changed, untracked), '
+          f'{counts["rejected_skew_disagreement"]} dropped (the cameras disagree)')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
     for index, counters in enumerate(driver.camera_counters_list()):
