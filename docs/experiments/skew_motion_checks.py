@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 from st_stereo.core.config import STConfig
+from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import bracketing_motion, camera_motion, CameraFrames, \
     skew_corrected_disparity, SkewCompensator
@@ -40,7 +41,6 @@ def diagnose(name, textures):
     spec = standard_sequences()[name]
     renderer = SequenceRenderer(spec, textures=textures)
     rectifier = StereoRectifier(*spec.rig.calibrations())
-    from st_stereo.core.matcher import StereoMatcher
     matcher = StereoMatcher(STConfig(), model=rectifier.model)
     previous = None
     columns = {key: [] for key in ('outlier', 'changed', 'tracked', 'moving',
@@ -95,7 +95,6 @@ def diagnose(name, textures):
 
 def correction_cost(textures, pairs=60):
     """Print the per-pair cost of SkewCompensator.correct without and with the check."""
-    from st_stereo.core.matcher import StereoMatcher
     elapsed = {0.0: [], 0.5: []}
     for name in SEQUENCES:
         spec = standard_sequences()[name]
