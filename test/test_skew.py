@@ -130,6 +130,16 @@ def test_eval_skew_on_a_walking_person_brings_the_errors_back():
         return np.percentile(np.abs(errors), 90)
     assert p90('skewed') > 1.5 * p90('synchronized')
     assert p90('compensated') < 0.7 * p90('skewed')
+    # What the node publishes: the same correction with the drops, a subset of the matches,
+    # each also scored by the synchronized matching of the same left feature.
+    assert p90('published') < 0.7 * p90('skewed')
+    published = [r for r in records if r['condition'] == 'published']
+    compensated = [r for r in records if r['condition'] == 'compensated']
+    assert sum(len(r['error']) for r in published) <= sum(len(r['error']) for r in compensated)
+    assert sum(sum(r['dropped'].values()) for r in published) > 0
+    same = np.concatenate([r['synchronized_same'] for r in published])
+    assert len(same) == sum(len(r['error']) for r in published)
+    assert np.isfinite(same).mean() > 0.8
 
 
 def test_a_rendered_room_without_people_keeps_every_point_exactly():

@@ -206,14 +206,15 @@ def match_pixels(truth, x_left, y):
             np.clip(np.rint(y).astype(int), 0, rows - 1))
 
 
-def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds):
+def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds,
+                            with_index=False):
     """
     Signed disparity errors of the matches on people (visible to the right camera).
 
     Returns ``(error, speed)``: the match's disparity less the principal-point offset minus the
     true disparity at its left pixel (the scene at the left camera's instant), and the image
     speed (px/s) of the person it lies on (``head_speeds[i]`` for label
-    ``PERSON_LABEL_BASE + i``).
+    ``PERSON_LABEL_BASE + i``). With ``with_index``, also the indices of those matches.
     """
     u, v = match_pixels(truth, x_left, y)
     label = truth.labels[v, u]
@@ -222,7 +223,10 @@ def people_disparity_errors(model, truth, x_left, y, disparity, head_speeds):
     error = own - truth.disparity[v, u]
     speeds = np.abs(np.asarray(head_speeds, dtype=np.float64))
     person = label[on_person] - PERSON_LABEL_BASE
-    return error[on_person], speeds[person] if len(speeds) else np.zeros(len(person))
+    speed = speeds[person] if len(speeds) else np.zeros(len(person))
+    if with_index:
+        return error[on_person], speed, np.flatnonzero(on_person)
+    return error[on_person], speed
 
 
 @dataclasses.dataclass

@@ -23,7 +23,7 @@ from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import bracketing_motion, CameraFrames, feature_motion, \
-    skew_corrected_disparity
+    skew_corrected_disparity, SkewCompensator
 from st_stereo.sim.scoring import match_pixels, people_disparity_errors, PERSON_LABEL_BASE, \
     SPEED_BINS_PX_S as SPEED_BINS
 
@@ -52,13 +52,19 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
     """
     Return rows ``{skew_ms, condition, error, speed}`` of one sequence.
 
-    Conditions: ``synchronized`` (skew 0), ``skewed`` and ``compensated`` per skew.
+    Conditions: ``synchronized`` (skew 0), ``skewed`` and ``compensated`` (every match
+    corrected) per skew, and ``published``: what the matcher node publishes, the pair through
+    ``SkewCompensator.correct`` with the configured drops (``skew_drop_untracked``,
+    ``skew_agreement_px``); its records also carry ``synchronized_same``, the synchronized
+    error of the same left features (those the synchronized matching also matched), so that
+    the drops' selection is compared with the same features' no-skew error.
     """
     from st_stereo.sim.sequences import SequenceRenderer
     renderer = SequenceRenderer(spec, textures=textures)
     rectifier = StereoRectifier(*spec.rig.calibrations())
     model = rectifier.model
-    matcher = StereoMatcher(config or STConfig(), model=model)
+    config = config or STConfig()
+    matcher = StereoMatcher(config, model=model)
     period = 1.0 / spec.fps
     records = []
     times = spec.frame_times[1::stride][:max_frames]
@@ -77,6 +83,8 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
             if skew_ms == 0.0:
                 records.append({'skew_ms': 0.0, 'condition': 'synchronized',
                                 'error': error, 'speed': speed})
+                synchronized = dict(zip(_feature_keys(result, left.shape).tolist(),
+                                        result.disparity.tolist()))
                 continue
             previous_right_raw = renderer.camera_frame('right', t + skew_ms * 1e-3 - period)
             previous_right = rectifier.rectify(previous_right_raw, previous_right_raw)[1]
@@ -103,6 +111,10 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
             records.append({'skew_ms': skew_ms, 'condition': 'compensated',
                             'error': corrected_error, 'speed': speed, 'ms': elapsed_ms,
                             'matches': len(result)})
+            records.append(_published_record(
+                config, model, frame['truth'], speeds, result, (previous, left),
+                (previous_right, right), t, period, skew_ms, matcher.disparity_bounds(),
+                synchronized))
             # The reference for the velocity estimate: each person's match corrected by the
             # true image velocity of that person's head.
             head_error, _ = people_disparity_errors(
@@ -113,6 +125,44 @@ def evaluate_sequence(spec, skews_ms=SKEWS_MS, config=None, stride=4, max_frames
             records.append({'skew_ms': skew_ms, 'condition': 'head velocity',
                             'error': head_error, 'speed': speed})
     return records
+
+
+def _feature_keys(result, shape):
+    """One integer per match: its left pixel (features are whole pixels of the left image)."""
+    return np.rint(result.y).astype(np.int64) * shape[1] + np.rint(result.x_left).astype(
+        np.int64)
+
+
+def _published_record(config, model, truth, speeds, result, left_frames, right_frames, t,
+                      period, skew_ms, bounds, synchronized):
+    """
+    Score what the matcher node publishes: the pair through ``SkewCompensator.correct``.
+
+    The compensator is given the previous pair (both cameras one period earlier) and corrects
+    this one with the configured drops. Returns the ``published`` record: errors on people of
+    the kept matches, and ``synchronized_same``, the synchronized disparity error of the same
+    left features (nan where the synchronized matching did not match that feature).
+    """
+    skew_s = skew_ms * 1e-3
+    compensator = SkewCompensator()
+    compensator.remember(left_frames[0], t - period, right_frames[0], skew_s, model)
+    published = compensator.correct(result, left_frames[1], t, skew_s, model, bounds,
+                                    right=right_frames[1],
+                                    drop_untracked=config.skew_drop_untracked,
+                                    agreement_px=config.skew_agreement_px)
+    error, speed, index = people_disparity_errors(model, truth, published.x_left, published.y,
+                                                  published.disparity, speeds,
+                                                  with_index=True)
+    keys = _feature_keys(published, left_frames[1].shape)[index]
+    same = np.array([synchronized.get(key, np.nan) for key in keys.tolist()], dtype=np.float64)
+    synchronized_error, _ = people_disparity_errors(
+        model, truth, published.x_left[index], published.y[index],
+        np.where(np.isfinite(same), same, 0.0), speeds)
+    return {'skew_ms': skew_ms, 'condition': 'published', 'error': error, 'speed': speed,
+            'synchronized_same': np.where(np.isfinite(same), synchronized_error, np.nan),
+            'dropped': {key: compensator.counts[key] for key in
+                        ('rejected_skew_untracked', 'rejected_skew_disagreement',
+                         'rejected_skew_range')}}
 
 
 def _stats(errors):
@@ -200,6 +250,65 @@ def cost_line(records):
             f'{np.median(matches):.0f} matches ({len(timed)} pairs).')
 
 
+def published_table(records):
+    """
+    Markdown table of what is published (the drops applied), by image speed and skew.
+
+    The published matches' errors against the synchronized errors of the same left features
+    (the features both matchings matched): the comparison the drops cannot flatter by keeping
+    only easy features. ``all speeds`` closes each skew.
+    """
+    lines = ['| head speed (px/s) | skew (ms) | matches, compensated | published | with a '
+             'synchronized match | median, published | median, synchronized (same features) '
+             '| median abs, published | median abs, synchronized (same features) | median '
+             'abs, synchronized (all) | p90 abs, published | p90 abs, synchronized (same '
+             'features) |', '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
+    skews = sorted({r['skew_ms'] for r in records if r['condition'] == 'published'})
+    for low, high in SPEED_BINS + ((0.0, np.inf),):
+        label = 'all speeds' if (low, high) == (0.0, np.inf) else f'{low:.0f}-{high:.0f}'
+
+        def pick(skew, condition, field='error'):
+            values = [r[field][(r['speed'] >= low) & (r['speed'] < high)] for r in records
+                      if r['skew_ms'] == skew and r['condition'] == condition]
+            return np.concatenate(values) if values else np.zeros(0)
+        synchronized_all = pick(0.0, 'synchronized')
+        for skew in skews:
+            published = pick(skew, 'published')
+            same = pick(skew, 'published', 'synchronized_same')
+            both = np.isfinite(same)
+            lines.append(
+                f'| {label} | {skew:+.0f} | {len(pick(skew, "compensated"))} | '
+                f'{len(published)} | {int(both.sum())} | {_median(published[both]):+.3f} | '
+                f'{_median(same[both]):+.3f} | {_median(np.abs(published[both])):.3f} | '
+                f'{_median(np.abs(same[both])):.3f} | '
+                f'{_median(np.abs(synchronized_all)):.3f} | '
+                f'{_percentile(np.abs(published[both]), 90):.3f} | '
+                f'{_percentile(np.abs(same[both]), 90):.3f} |')
+    return '\n'.join(lines)
+
+
+def _median(values):
+    return float(np.median(values)) if len(values) else float('nan')
+
+
+def _percentile(values, q):
+    return float(np.percentile(values, q)) if len(values) else float('nan')
+
+
+def drop_line(records):
+    """One line: the matches the compensation dropped, per reason, over the published pairs."""
+    totals = {}
+    for r in records:
+        for key, count in r.get('dropped', {}).items():
+            totals[key] = totals.get(key, 0) + count
+    if not totals:
+        return ''
+    compensated = sum(r['matches'] for r in records if 'matches' in r)
+    return ('Dropped by the compensation (all matches, not only people): '
+            + ', '.join(f'{key} {count}' for key, count in totals.items())
+            + f', of {compensated} matches.')
+
+
 def markdown_report(report):
     """Markdown: by skew (all people; people faster than 10 px/s) and by speed, per group."""
     out = []
@@ -211,5 +320,7 @@ def markdown_report(report):
         out += [f'#### {title}: people, all speeds', '', skew_table(records), '',
                 f'#### {title}: people moving faster than 10 px/s', '',
                 skew_table(records, 10.0), '', f'#### {title}: by image speed', '',
-                speed_table(records), '', cost_line(records), '']
+                speed_table(records), '', cost_line(records), '',
+                f'#### {title}: published (the drops applied), against the same features '
+                'synchronized', '', published_table(records), '', drop_line(records), '']
     return '\n'.join(out)
