@@ -139,15 +139,24 @@ class STConfig:
                                      '(docs/skew.md)')
     skew_drop_untracked: bool = _field(True, 'with skew_compensation, drop the matches whose '
                                        'window changed between the frames but could not be '
-                                       'tracked: they move at an unknown velocity, so their '
-                                       'skew error is unknown (counted as '
-                                       'skew rejected_skew_untracked)')
+                                       'tracked (counted as skew rejected_skew_untracked), '
+                                       'and, with skew_velocity poc, the moving ones the POC '
+                                       'does not find again in the previous frame (counted as '
+                                       'skew rejected_skew_poc): they move at an unknown '
+                                       'velocity, so their skew error is unknown')
     skew_agreement_px: float = _field(0.5, 'with skew_compensation, track the moving features '
                                       'on both cameras and drop a match whose two '
                                       'displacements over the skew (v_x * skew) differ by '
                                       'more than this, pixels (counted as skew '
                                       'rejected_skew_disagreement); 0 disables',
                                       low=0.0, high=10.0)
+
+    skew_velocity: str = _field('poc', "with skew_compensation, how a moving feature's "
+                                'velocity is measured: poc (its disparity measured again by '
+                                "the sub-pixel POC against the bracketing camera's previous "
+                                'frame, the NCC track only placing the search) or ncc (the '
+                                'NCC track alone, the method before 2026-12-06)',
+                                choices=('poc', 'ncc'))
 
     # --- 6. Implementation ---------------------------------------------------------------
     kernels: str = _field('auto', 'hot-path implementation: compiled (numba kernels), numpy '

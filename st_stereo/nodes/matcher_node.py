@@ -28,7 +28,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.kernels import use_compiled, warm_up
 from st_stereo.core.matcher import StereoMatcher
-from st_stereo.core.skew import SkewCompensator
+from st_stereo.core.skew import compensation_options, SkewCompensator
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.lepton.pairing import pair_ffc_from_values, pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics
@@ -211,8 +211,7 @@ class MatcherNode(Node):
         with self._pair_times_lock:
             left_time, skew, ffc = self.pair_times.pop(stamp, (None, None, (False, False)))
         return self.skew.correct(result, left, left_time, skew, model, bounds, right=right,
-                                 ffc=ffc, drop_untracked=config.skew_drop_untracked,
-                                 agreement_px=config.skew_agreement_px)
+                                 ffc=ffc, **compensation_options(config))
 
     def _model_for(self, left_info, right_info):
         # Built once per calibration, not per message (the rectifier's P rarely changes).

@@ -21,7 +21,7 @@ from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
-from st_stereo.core.skew import SkewCompensator
+from st_stereo.core.skew import compensation_options, SkewCompensator
 from st_stereo.sim.scoring import (markdown_motion_table, markdown_surface_table, MotionTally,
                                    people_disparity_errors, PointTally, score_points)
 
@@ -64,8 +64,7 @@ class PairMatching:
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
                                        self.matcher.disparity_bounds(), right=right,
-                                       drop_untracked=self.config.skew_drop_untracked,
-                                       agreement_px=self.config.skew_agreement_px)
+                                       **compensation_options(self.config))
         return result
 
 

@@ -244,8 +244,10 @@ def print_summary(driver, matcher, monitor, depth):
           f'{counts["pairs_tracked_on_right"]} tracked on the right camera (positive skew), '
           f'{counts["pairs_extrapolated"]} extrapolated, {counts["pairs_in_ffc"]} in FFC, '
           f'{counts["pairs_calibration_changed"]} after a new calibration; '
-          f'{counts["features_moving"]} moving features corrected, '
+          f'{counts["features_moving"]} moving features corrected '
+          f'({counts["features_poc_velocity"]} by their POC velocity), '
           f'{counts["rejected_skew_untracked"]} dropped (changed, untracked), '
+          f'{counts["rejected_skew_poc"]} dropped (not found again by the POC), '
           f'{counts["rejected_skew_disagreement"]} dropped (the cameras disagree)')
     if monitor.depths and depth is not None:
         print(f'  median depth: {np.median(monitor.depths):.3f} m (true plane: {depth:.3f} m)')
