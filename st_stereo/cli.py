@@ -449,7 +449,8 @@ def build_parser():
     e.set_defaults(handler=command_eval_people)
     e = eval_sub.add_parser('skew', help='camera skew: disparity errors on moving people '
                             'without and with compensation, by skew and image speed')
-    _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room', 4)
+    _add_sequence_options(e, 'walk_across,two_people,sit_down,meeting_room,crossing,'
+                          'open_office', 4)
     e.add_argument('--skews', default=','.join(f'{s:g}' for s in (-55, -25, 10, 25, 40, 55)),
                    help='skews t_right - t_left, milliseconds')
     _add_report_options(e, strict=False)
