@@ -146,7 +146,8 @@ def test_eval_skew_on_a_walking_person_brings_the_errors_back():
     assert np.isfinite(same).mean() > 0.8
 
 
-def test_a_rendered_room_without_people_keeps_every_point_exactly():
+@pytest.mark.parametrize('velocity_method', ['ncc', 'poc'])
+def test_a_rendered_room_without_people_keeps_every_point_exactly(velocity_method):
     # Review finding: on raw 14-bit counts (~8000, texture of a few counts) a float32 NCC and
     # a shift threshold alone marked static features as moving (up to 3.3 px corrected). The
     # simulator's rooms, empty, real noise, through the compensator with a 55 ms skew.
@@ -157,7 +158,7 @@ def test_a_rendered_room_without_people_keeps_every_point_exactly():
         spec = dataclasses.replace(standard_sequences()[name], people=())
         renderer = SequenceRenderer(spec)
         rectifier = StereoRectifier(*spec.rig.calibrations())
-        matcher = StereoMatcher(STConfig(), model=rectifier.model)
+        matcher = StereoMatcher(STConfig(skew_velocity=velocity_method), model=rectifier.model)
         compensator = SkewCompensator()
         for index, t in enumerate((1.0, 1.0 + PERIOD_S, 1.0 + 2 * PERIOD_S)):
             frame = renderer.frame(t, with_truth=False, right_t=t + 0.055)
@@ -424,7 +425,7 @@ def test_a_negative_cross_time_disparity_is_not_clamped(people_80x60):
     def camera(t, shift, seed):
         return noisy(fourier_shift_image_x(texture, shift - velocity * t), seed)
     left, right = camera(0.0, 0.0, 2), camera(skew_s, disparity, 3)
-    config = STConfig(disparity_min=0)
+    config = STConfig(disparity_min=0, skew_velocity='poc')
     result = StereoMatcher(config).match(left, right)
     compensator = SkewCompensator()
     compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
@@ -446,7 +447,7 @@ def test_without_the_right_image_the_ncc_velocities_serve(people_80x60):
     def camera(t, shift, seed):
         return noisy(fourier_shift_image_x(texture, shift - velocity * t), seed)
     left = camera(0.0, 0.0, 2)
-    config = STConfig()
+    config = STConfig(skew_velocity='poc')
     result = StereoMatcher(config).match(left, camera(skew_s, DISPARITY, 3))
     compensator = SkewCompensator()
     compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s)
@@ -479,8 +480,9 @@ def test_a_moving_feature_the_poc_cannot_find_again_is_dropped_and_counted(peopl
         compensator = SkewCompensator()
         compensator.correct(result, noisy(other, 4), -PERIOD_S, skew_s, right=previous_right)
         corrected = compensator.correct(result, left, 0.0, skew_s, right=right,
-                                        **dict(compensation_options(STConfig()),
-                                               drop_untracked=drop, agreement_px=0.0))
+                                        **dict(compensation_options(STConfig(
+                                            skew_velocity='poc')),
+                                            drop_untracked=drop, agreement_px=0.0))
         counts = compensator.counts
         assert counts['pairs_tracked_on_right'] == 1
         assert counts['features_moving'] > 0.8 * len(result)

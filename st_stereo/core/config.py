@@ -151,12 +151,14 @@ class STConfig:
                                       'rejected_skew_disagreement); 0 disables',
                                       low=0.0, high=10.0)
 
-    skew_velocity: str = _field('poc', "with skew_compensation, how a moving feature's "
-                                'velocity is measured: poc (its disparity measured again by '
-                                "the sub-pixel POC against the bracketing camera's previous "
-                                'frame, the NCC track only placing the search) or ncc (the '
-                                'NCC track alone, the method before 2026-12-06)',
-                                choices=('poc', 'ncc'))
+    skew_velocity: str = _field('ncc', "with skew_compensation, how a moving feature's "
+                                'velocity is measured: ncc (the NCC track alone) or poc (its '
+                                'disparity measured again by the sub-pixel POC against the '
+                                "bracketing camera's previous frame, the NCC track only "
+                                'placing the search: better points and skew errors, but the '
+                                'people stage lost a walker to a warm screen with it, so not '
+                                'the default; docs/skew.md)',
+                                choices=('ncc', 'poc'))
 
     # --- 6. Implementation ---------------------------------------------------------------
     kernels: str = _field('auto', 'hot-path implementation: compiled (numba kernels), numpy '

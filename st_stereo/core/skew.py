@@ -22,7 +22,8 @@ skew +40 ms: median abs error 0.468 px with the left camera's velocity, 0.378 px
 right camera's (docs/skew.md). When the bracketing camera has no usable previous frame (not
 known, more than ``max_period_s`` old, another shape, frozen by an FFC) the other one serves,
 extrapolating, and the pair is counted as ``pairs_extrapolated``.
-With ``skew_velocity`` ``poc`` (the default) the track only finds the moving features and
+With ``skew_velocity`` ``poc`` (an option, not the default: below) the track only finds the
+moving features and
 places a second search: each moving feature's disparity is measured again by the matcher's own
 sub-pixel POC with the bracketing camera's previous frame in place of its current one
 (``poc_velocity``), and the difference of the two disparities over the period is the velocity.
@@ -31,7 +32,9 @@ the same Hann-weighted window, which the NCC's integer search and parabola only 
 Measured on the tuning sequences, moving people, published matches: median abs error
 0.282 -> 0.241 px (10-25 px/s) and 0.326 -> 0.290 px (over 25 px/s) at +55 ms, p90
 0.799 -> 0.668 and 0.804 -> 0.703 px (docs/skew.md). A moving feature the POC does not find
-again is dropped with ``skew_drop_untracked`` (``rejected_skew_poc``).
+again is dropped with ``skew_drop_untracked`` (``rejected_skew_poc``). Not the default: with
+it the people stage lost walk_across's walker to a warm screen (precision 100 -> 63.7 %,
+docs/skew.md), a tracker fragility that these slightly different points set off.
 Features that do not move (their window did not change beyond the noise, or best offset 0 and
 a sub-pixel shift below ``static_px``) get no correction at all, so a static scene keeps
 exactly the same disparities. Windows that did not change are not tracked at all (the search
