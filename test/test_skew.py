@@ -20,6 +20,23 @@ def noisy(image, seed):
     return image + np.random.default_rng(seed).normal(0.0, 2.0, image.shape)
 
 
+def translating_camera(texture, velocity):
+    """Return ``camera(t, disparity, seed)``: the texture moving at ``velocity`` px/s, noisy."""
+    def camera(t, disparity, seed):
+        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    return camera
+
+
+def correct_after_previous_pair(result, camera, left, right, skew_s, disparity=DISPARITY,
+                                **options):
+    """Correct the pair at t = 0 after the pair one period earlier; return it and the counts."""
+    compensator = SkewCompensator()
+    compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
+                        right=camera(skew_s - PERIOD_S, disparity, 5))
+    corrected = compensator.correct(result, left, 0.0, skew_s, right=right, **options)
+    return corrected, compensator.counts
+
+
 @pytest.mark.parametrize('velocity_method', ['poc', 'ncc'])
 def test_a_static_scene_keeps_every_disparity_exactly(people_80x60, velocity_method):
     # Three independent noise draws (previous left, left, right) of a static scene: no
@@ -197,10 +214,7 @@ def test_only_windows_that_changed_are_searched_and_the_rest_are_static(people_8
 
 def moving_scene(people_80x60, skew_s, velocity=30.0):
     """Return frames of a scene moving at ``velocity`` px/s (both cameras) and its matches."""
-    texture = thermal(people_80x60)
-
-    def camera(t, disparity, seed):
-        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     frames = {'previous_left': camera(-PERIOD_S, 0.0, 1), 'left': camera(0.0, 0.0, 2),
               'previous_right': camera(skew_s - PERIOD_S, DISPARITY, 3),
               'right': camera(skew_s, DISPARITY, 4)}
@@ -352,23 +366,18 @@ def test_the_poc_velocity_corrects_a_sub_pixel_motion_without_the_ncc_bias(
     # (23.7 px/s is 2.72 px): the NCC's integer search and parabola leave about 0.02 px of
     # bias in the corrected disparities here; the POC measures the same window's disparity
     # against the bracketing camera's previous frame and interpolates it in time.
-    texture = thermal(people_80x60)
-
-    def camera(t, disparity, seed):
-        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig(skew_velocity='poc')
     result = StereoMatcher(config).match(left, right)
     inner = (result.x_left > 12) & (result.x_left < 68)     # away from the shifted-in border
 
     def corrected_errors(options):
-        compensator = SkewCompensator()
-        compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
-                            right=camera(skew_s - PERIOD_S, DISPARITY, 5))
-        corrected = compensator.correct(result, left, 0.0, skew_s, right=right, **options)
+        corrected, counts = correct_after_previous_pair(result, camera, left, right, skew_s,
+                                                        **options)
         keep = np.isin(corrected.x_left * 1000 + corrected.y,
                        (result.x_left * 1000 + result.y)[inner])
-        return corrected.disparity[keep] - DISPARITY, compensator.counts
+        return corrected.disparity[keep] - DISPARITY, counts
     errors, counts = corrected_errors(compensation_options(config))
     assert len(errors) == inner.sum()                       # none dropped inside
     assert counts['features_poc_velocity'] > 0.9 * counts['features_moving']
@@ -388,10 +397,7 @@ def test_poc_velocity_measures_the_motion_and_refuses_a_track_it_does_not_confir
     # off; from a track 1.5 px per period off the POC (recentred within poc_max_shift) still
     # finds the true shift, 1.5 px from the track: beyond max_disagreement_px (1 px), refused.
     velocity, skew_s = 17.3, 0.04 if camera_side == 'right' else -0.04
-    texture = thermal(people_80x60)
-
-    def camera(t, disparity, seed):
-        return noisy(fourier_shift_image_x(texture, disparity - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig()
     result = StereoMatcher(config).match(left, right)
@@ -420,32 +426,22 @@ def test_a_negative_cross_time_disparity_is_not_clamped(people_80x60):
     # disparity (1 px, -45 px/s: d_prev = 1 - 5.2 px); clamped at 0 like a stereo disparity it
     # biased or dropped every feature. Skew +45 ms, the right camera's frames.
     disparity, velocity, skew_s = 1.0, -45.0, 0.045
-    texture = thermal(people_80x60)
-
-    def camera(t, shift, seed):
-        return noisy(fourier_shift_image_x(texture, shift - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     left, right = camera(0.0, 0.0, 2), camera(skew_s, disparity, 3)
     config = STConfig(disparity_min=0, skew_velocity='poc')
     result = StereoMatcher(config).match(left, right)
-    compensator = SkewCompensator()
-    compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
-                        right=camera(skew_s - PERIOD_S, disparity, 5))
-    corrected = compensator.correct(result, left, 0.0, skew_s, right=right,
-                                    **compensation_options(config))
+    corrected, counts = correct_after_previous_pair(result, camera, left, right, skew_s,
+                                                    disparity, **compensation_options(config))
     inner = (corrected.x_left > 14) & (corrected.x_left < 62)
     assert inner.sum() > 0.5 * ((result.x_left > 14) & (result.x_left < 62)).sum()
-    assert compensator.counts['features_poc_velocity'] > 0.8 * \
-        compensator.counts['features_moving']
+    assert counts['features_poc_velocity'] > 0.8 * counts['features_moving']
     assert abs(np.median(corrected.disparity[inner]) - disparity) < 0.02
 
 
 def test_without_the_right_image_the_ncc_velocities_serve(people_80x60):
     # Review finding: right=None with the POC velocities asked for raised a numba TypingError.
     velocity, skew_s = 20.0, -0.04
-    texture = thermal(people_80x60)
-
-    def camera(t, shift, seed):
-        return noisy(fourier_shift_image_x(texture, shift - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     left = camera(0.0, 0.0, 2)
     config = STConfig(skew_velocity='poc')
     result = StereoMatcher(config).match(left, camera(skew_s, DISPARITY, 3))
@@ -470,9 +466,8 @@ def test_a_moving_feature_the_poc_cannot_find_again_is_dropped_and_counted(peopl
     texture = thermal(people_80x60)
     other = thermal(np.rot90(people_80x60, 2))
 
-    def camera(t, seed):
-        return noisy(fourier_shift_image_x(texture, DISPARITY - velocity * t), seed)
-    right, previous_right = camera(skew_s, 3), camera(skew_s - PERIOD_S, 5)
+    camera = translating_camera(texture, velocity)
+    right, previous_right = camera(skew_s, DISPARITY, 3), camera(skew_s - PERIOD_S, DISPARITY, 5)
     result = StereoMatcher(STConfig()).match(noisy(fourier_shift_image_x(texture, 0.0), 2),
                                              right)
     left = noisy(other, 2)
@@ -533,21 +528,16 @@ def test_with_poc_on_the_feature_images_the_poc_velocity_still_corrects(
     # velocity corrects better than one measured on M (0.015 against 0.022-0.027 px) and than
     # the NCC's (0.034-0.039 px); kept.
     velocity, skew_s = 23.7, 0.045 if camera_side == 'right' else -0.045
-    texture = thermal(people_80x60)
-
-    def camera(t, shift, seed):
-        return noisy(fourier_shift_image_x(texture, shift - velocity * t), seed)
+    camera = translating_camera(thermal(people_80x60), velocity)
     left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig(poc_source='moments')
     result = StereoMatcher(config).match(left, right)
 
     def median_error(velocity_method):
-        compensator = SkewCompensator()
-        compensator.correct(result, camera(-PERIOD_S, 0.0, 4), -PERIOD_S, skew_s,
-                            right=camera(skew_s - PERIOD_S, DISPARITY, 5))
         options = compensation_options(STConfig(poc_source='moments',
                                                 skew_velocity=velocity_method))
-        corrected = compensator.correct(result, left, 0.0, skew_s, right=right, **options)
+        corrected, _ = correct_after_previous_pair(result, camera, left, right, skew_s,
+                                                   **options)
         inner = (corrected.x_left > 12) & (corrected.x_left < 68)
         return abs(np.median(corrected.disparity[inner]) - DISPARITY)
     assert median_error('poc') < 0.02
