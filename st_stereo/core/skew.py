@@ -23,15 +23,14 @@ right camera's (docs/skew.md). When the bracketing camera has no usable previous
 known, more than ``max_period_s`` old, another shape, frozen by an FFC) the other one serves,
 extrapolating, and the pair is counted as ``pairs_extrapolated``.
 With ``skew_velocity`` ``poc`` (an option, not the default: below) the track only finds the
-moving features and
-places a second search: each moving feature's disparity is measured again by the matcher's own
-sub-pixel POC with the bracketing camera's previous frame in place of its current one
-(``poc_velocity``), and the difference of the two disparities over the period is the velocity.
-``d' + v_x skew_s`` is then the disparity interpolated in time between two correspondences of
-the same Hann-weighted window, which the NCC's integer search and parabola only approximate.
-Measured on the tuning sequences, moving people, published matches: median abs error
-0.282 -> 0.241 px (10-25 px/s) and 0.326 -> 0.290 px (over 25 px/s) at +55 ms, p90
-0.799 -> 0.668 and 0.804 -> 0.703 px (docs/skew.md). A moving feature the POC does not find
+moving features and places a second search: each moving feature's disparity is measured again
+by the matcher's own sub-pixel POC with the bracketing camera's previous frame in place of its
+current one (``poc_velocity``), and the difference of the two disparities over the period is
+the velocity. ``d' + v_x skew_s`` is then the disparity interpolated in time between two
+correspondences of the same Hann-weighted window, which the NCC's integer search and parabola
+only approximate. Measured on the tuning sequences, moving people, published matches: median
+abs error 0.282 -> 0.241 px (10-25 px/s) and 0.326 -> 0.291 px (over 25 px/s) at +55 ms, p90
+0.799 -> 0.679 and 0.804 -> 0.707 px (docs/skew.md). A moving feature the POC does not find
 again is dropped with ``skew_drop_untracked`` (``rejected_skew_poc``). Not the default: with
 it the people stage lost walk_across's walker to a warm screen (precision 100 -> 63.7 %,
 docs/skew.md), a tracker fragility that these slightly different points set off.
@@ -206,12 +205,11 @@ def poc_velocity(frames, camera, left, right, x_left, y, disparity, velocity_x, 
     the corrected median error is 0.015 px with these velocities, 0.022-0.027 px with
     velocities measured on the feature images M, 0.034-0.039 px with the NCC's. ``d_prev``
     pairs two instants and may be negative (fast motion at a small disparity): it is not
-    clamped. Returns the
-    velocities, nan where either window leaves the image, the POC rejected the window, or the
-    two velocities disagree by more than ``max_disagreement_px / T`` (the POC locked on
-    something else). The images are the rectified ones the caller has, invalid border
-    included (the matcher fills it before its own POC): a window reaching into it is more
-    likely refused.
+    clamped. Returns the velocities, nan where either window leaves the image, the POC
+    rejected the window, or the two velocities disagree by more than
+    ``max_disagreement_px / T`` (the POC locked on something else). The images are the
+    rectified ones the caller has, invalid border included (the matcher fills it before its
+    own POC): a window reaching into it is more likely refused.
     """
     x_left = np.asarray(x_left, dtype=np.int64)
     y = np.asarray(y, dtype=np.int64)
