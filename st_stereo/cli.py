@@ -267,6 +267,12 @@ def command_eval_calibration(args):
     return eval_calibration.main(args)
 
 
+def command_eval_rig_pose(args):
+    """St-stereo rig-pose on simulated rigs with known poses."""
+    from st_stereo.tools import eval_rig_pose
+    return eval_rig_pose.main(args)
+
+
 def command_eval_pipeline(args):
     """Paper Table 2: ST vs ORB + KNN vs StereoSGBM in 3-D on simulated sequences."""
     from st_stereo.tools import eval_pipeline as ep
@@ -471,6 +477,12 @@ def build_parser():
     e.add_argument('--markdown', help='write the tables as Markdown')
     _add_report_options(e, config=False)
     e.set_defaults(handler=command_eval_calibration)
+    e = eval_sub.add_parser('rig-pose', help='st-stereo rig-pose on simulated rigs whose '
+                            'height, tilt and roll are known')
+    from st_stereo.tools.eval_rig_pose import add_arguments as add_rig_pose_arguments
+    add_rig_pose_arguments(e)
+    _add_report_options(e, config=False)
+    e.set_defaults(handler=command_eval_rig_pose)
     e = eval_sub.add_parser('all', help='every evaluation: the paper-reproduction report')
     e.add_argument('--out', default='docs/results.md', help='Markdown report path (figures '
                    'and JSON go to results/ beside it)')
@@ -493,6 +505,8 @@ def build_parser():
     add_sim_parser(sub)
     from st_stereo.tools.calibrate import add_parser as add_calibrate_parser
     add_calibrate_parser(sub)
+    from st_stereo.tools.rig_pose import add_parser as add_rig_pose_parser
+    add_rig_pose_parser(sub)
     from st_stereo.tools.rig_bench import add_parser as add_rig_bench_parser
     add_rig_bench_parser(sub)
 

@@ -97,6 +97,22 @@ def load_rig_pose(path):
     return rig_pose_from_mapping({} if values is None else values, str(path))
 
 
+def rig_pose_yaml(pose, header=(), notes=None):
+    """
+    Return a rig pose as YAML text that ``load_rig_pose`` reads back exactly.
+
+    ``header``: comment lines (with their ``#``) put first; ``notes``: field -> a comment
+    written after that field's value.
+    """
+    notes = notes or {}
+    lines = list(header)
+    for field in POSE_FIELDS:
+        value = getattr(pose, field)
+        text = f'{field}: {value if isinstance(value, str) else repr(float(value))}'
+        lines.append(f'{text}    # {notes[field]}' if field in notes else text)
+    return '\n'.join(lines) + '\n'
+
+
 def rotation_y(angle):
     """Rotation matrix about y by ``angle`` radians."""
     c, s = math.cos(angle), math.sin(angle)

@@ -83,8 +83,6 @@ def command_render(args):
 
 def command_calibration(args):
     """Render pairs of a heated target (images + the true calibration) for ``calibrate``."""
-    import cv2
-
     from st_stereo.core.calibration.targets import CalibrationTarget
     from st_stereo.core.calibration.files import save_calibration
     from st_stereo.sim.rig import realistic_rig
@@ -95,22 +93,57 @@ def command_calibration(args):
                                         warm_features=not args.cold_features)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.bag:
-        from st_stereo.sim.recording import write_pairs_bag
-        written = f'the bag {write_pairs_bag(pairs, out / "bag", overwrite=args.overwrite)}'
-    else:
-        for side in ('left', 'right'):
-            (out / side).mkdir(parents=True, exist_ok=True)
-        for index, pair in enumerate(pairs):
-            for side, image in zip(('left', 'right'), pair):
-                if not cv2.imwrite(str(out / side / f'{index:03d}.png'), image):
-                    raise ValueError(f'{out / side}: could not write the images')
-        written = f'{out}/left, {out}/right'
+    written = _write_pairs(pairs, out, args.bag, args.overwrite)
     for side, calibration in zip(('left', 'right'), rig.calibrations()):
         save_calibration(calibration, out / f'true_{side}.yaml')
     print(f'wrote {len(pairs)} pairs of a {args.target} target to {written} and '
           f'the true calibration to {out}/true_left.yaml, true_right.yaml; baseline '
           f'{rig.baseline_m:.4f} m')
+    return 0
+
+
+def _write_pairs(pairs, out, bag, overwrite):
+    """Write raw pairs as OUT/left, OUT/right PNGs or as OUT/bag; return what was written."""
+    import cv2
+    if bag:
+        from st_stereo.sim.recording import write_pairs_bag
+        return f'the bag {write_pairs_bag(pairs, out / "bag", overwrite=overwrite)}'
+    for side in ('left', 'right'):
+        (out / side).mkdir(parents=True, exist_ok=True)
+    for index, pair in enumerate(pairs):
+        for side, image in zip(('left', 'right'), pair):
+            if not cv2.imwrite(str(out / side / f'{index:03d}.png'), image):
+                raise ValueError(f'{out / side}: could not write the images')
+    return f'{out}/left, {out}/right'
+
+
+def command_floor_target(args):
+    """Render pairs of a target lying on a room's floor (+ the true calibration and pose)."""
+    import dataclasses
+
+    from st_stereo.core.calibration.files import save_calibration
+    from st_stereo.core.calibration.targets import CalibrationTarget
+    from st_stereo.core.rig_pose import rig_pose_yaml
+    from st_stereo.sim.rig import realistic_rig
+    from st_stereo.sim.targets import render_floor_target_pairs
+    target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
+    rig = dataclasses.replace(realistic_rig(), mount_height_m=args.rig_height,
+                              tilt_deg=args.rig_tilt, roll_deg=args.rig_roll)
+    pairs = render_floor_target_pairs(rig, target, tuple(args.at), args.yaw, args.pairs,
+                                      room=args.room, thickness_m=args.thickness,
+                                      seed=args.seed)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = _write_pairs(pairs, out, args.bag, args.overwrite)
+    for side, calibration in zip(('left', 'right'), rig.calibrations()):
+        save_calibration(calibration, out / f'{side}.yaml')
+    pose = rig.rig_pose()
+    (out / 'true_rig_pose.yaml').write_text(rig_pose_yaml(
+        pose, ["# The simulated rig's true pose (st-stereo sim floor-target)."]))
+    print(f'wrote {len(pairs)} pairs of a {args.target} target on the floor of {args.room} to '
+          f'{written}, the true calibration to {out}/left.yaml, right.yaml and the true pose '
+          f'to {out}/true_rig_pose.yaml (height {pose.height_m} m, tilt {pose.tilt_deg:.3f}, '
+          f'roll {pose.roll_deg:.3f} deg)')
     return 0
 
 
@@ -149,3 +182,26 @@ def add_parser(sub):
     s.add_argument('--seed', type=int, default=0)
     s.add_argument('--out', required=True, help='output directory')
     s.set_defaults(handler=command_calibration)
+    s = sim.add_parser('floor-target', help='render pairs of a target lying on the floor '
+                       '(for st-stereo rig-pose)')
+    s.add_argument('--target', default='circles', choices=('circles', 'acircles', 'chessboard'))
+    s.add_argument('--rows', type=int, default=4)
+    s.add_argument('--cols', type=int, default=5)
+    s.add_argument('--spacing', type=float, default=0.25, help='metres (default 0.25)')
+    s.add_argument('--at', type=float, nargs=2, default=(0.0, 2.4), metavar=('X', 'Y'),
+                   help="the grid's centre on the floor, metres (room: x right, y away from "
+                   'the rig; default 0 2.4)')
+    s.add_argument('--yaw', type=float, default=0.0, help="the target's turn on the floor, deg")
+    s.add_argument('--thickness', type=float, default=0.005, help='metres (default 0.005)')
+    s.add_argument('--room', default='office', choices=('office', 'meeting_room', 'open_office'))
+    s.add_argument('--rig-height', type=float, default=2.9, help='metres (default 2.9)')
+    s.add_argument('--rig-tilt', type=float, default=40.0,
+                   help='degrees below the horizontal (default 40)')
+    s.add_argument('--rig-roll', type=float, default=0.0, help='degrees (default 0)')
+    s.add_argument('--pairs', type=int, default=20)
+    s.add_argument('--bag', action='store_true',
+                   help='write OUT/bag (rosbag2, raw image topics) instead of PNG pairs')
+    s.add_argument('--overwrite', action='store_true', help='replace an existing OUT/bag')
+    s.add_argument('--seed', type=int, default=0)
+    s.add_argument('--out', required=True, help='output directory')
+    s.set_defaults(handler=command_floor_target)

@@ -124,7 +124,8 @@ class RigGeometry:
 
     Defaults: Lepton 2 (80x60, HFOV 51 deg, fx = 83.9 px) and the baseline that gives the
     paper's fx B = 46,300 px mm (../shared/notes/algorithm.md section 6), mounted 2.9 m above the
-    floor, tilted 40 deg below the horizontal. ``distortion`` (k1, k2) and the right camera's
+    floor, tilted 40 deg below the horizontal (``roll_deg`` turns both cameras about the left
+    optical axis). ``distortion`` (k1, k2) and the right camera's
     ``misalignment_deg`` (roll, pitch, yaw) make the rectifier do real work; all zero gives an
     ideal, already rectified rig.
     """
@@ -135,6 +136,7 @@ class RigGeometry:
     baseline_m: float = DEFAULT_FX_BASELINE_PX_M / focal_length_of_hfov(80, 51.0)
     mount_height_m: float = 2.9
     tilt_deg: float = 40.0
+    roll_deg: float = 0.0
     distortion: tuple = (0.0, 0.0)
     misalignment_deg: tuple = (0.0, 0.0, 0.0)
     right_focal_scale: float = 1.0
@@ -151,12 +153,17 @@ class RigGeometry:
                          [0.0, 0.0, 1.0]])
 
     def base_rotation(self):
-        """World-to-camera rotation of a camera tilted ``tilt_deg`` below the horizontal."""
-        t = math.radians(self.tilt_deg)
+        """
+        World-to-camera rotation: tilted ``tilt_deg`` below the horizontal, rolled ``roll_deg``.
+
+        The roll turns the image about the optical axis (the camera's x axis towards its y).
+        """
+        t, r = math.radians(self.tilt_deg), math.radians(self.roll_deg)
         x_axis = np.array([1.0, 0.0, 0.0])
         z_axis = np.array([0.0, math.cos(t), -math.sin(t)])
         y_axis = np.cross(z_axis, x_axis)
-        return np.vstack([x_axis, y_axis, z_axis])
+        return np.vstack([math.cos(r) * x_axis + math.sin(r) * y_axis,
+                          -math.sin(r) * x_axis + math.cos(r) * y_axis, z_axis])
 
     def cameras(self):
         """Return the left and right PinholeCamera."""
@@ -165,10 +172,11 @@ class RigGeometry:
         half = self.baseline_m / 2.0
         left = PinholeCamera(self.width, self.height, self.nominal_camera_matrix(), distortion,
                              rotation, np.array([-half, 0.0, self.mount_height_m]))
+        # The baseline runs along the left camera's x axis: a rolled rig rolls its bar too.
         right = PinholeCamera(self.width, self.height,
                               self.nominal_camera_matrix(self.right_focal_scale),
                               distortion.copy(), rotation_xyz(*self.misalignment_deg) @ rotation,
-                              np.array([half, 0.0, self.mount_height_m]))
+                              left.centre + self.baseline_m * rotation[0])
         return left, right
 
     def stereo_extrinsics(self):
@@ -228,15 +236,21 @@ class RigGeometry:
         """
         Return the true RigPose of the left camera (``st_stereo.core.rig_pose`` conventions).
 
-        The world here has x to the right, y away from the rig horizontally and z up; the rig's
-        x axis (the tilt direction) is the world's y (yaw 90 degrees) and the tilt from straight
-        down is ``90 - tilt_deg``.
+        Tilt and roll come from the world's up axis in the left camera's frame
+        (``st_stereo.core.floor_pose.tilt_roll_of_up``), the yaw from the horizontal direction
+        of its optical axis. The world here has x to the right, y away from the rig
+        horizontally and z up: the rig's x axis (the tilt direction) is the world's y (yaw 90
+        degrees) and the tilt from straight down is ``90 - tilt_deg``.
         """
+        from st_stereo.core.floor_pose import tilt_roll_of_up
         from st_stereo.core.rig_pose import RigPose
         left, _ = self.cameras()
+        tilt, roll = tilt_roll_of_up(left.rotation @ np.array([0.0, 0.0, 1.0]))
+        axis = left.rotation[2]
         return RigPose(world_frame=world_frame, rig_frame=rig_frame, x_m=float(left.centre[0]),
-                       y_m=float(left.centre[1]), height_m=float(left.centre[2]), yaw_deg=90.0,
-                       tilt_deg=90.0 - self.tilt_deg, roll_deg=0.0)
+                       y_m=float(left.centre[1]), height_m=float(left.centre[2]),
+                       yaw_deg=math.degrees(math.atan2(axis[1], axis[0])), tilt_deg=tilt,
+                       roll_deg=roll)
 
     @property
     def fx_baseline(self):

@@ -173,3 +173,44 @@ def render_calibration_pairs(rig, target, count, seed=0, warm_features=True, sup
                   for sensor, camera in zip(sensors, rig.cameras())]
         pairs.append(tuple(frames))
     return pairs, poses
+
+
+def floor_target_pose(target, floor_xy, yaw_deg=0.0, thickness_m=0.005):
+    """
+    Pose (origin, rotation) of a target lying flat on the floor.
+
+    Its grid is centred on ``floor_xy`` (world metres) and turned ``yaw_deg`` about the
+    vertical; its surface lies ``thickness_m`` above the floor.
+    """
+    x0, y0, x1, y1 = PatternMaterial(target).extent()
+    rotation = rotation_xyz(yaw_deg, 0.0, 0.0)      # about the world's vertical z axis
+    centre = np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0])
+    origin = np.array([floor_xy[0], floor_xy[1], thickness_m]) - rotation @ centre
+    return origin, rotation
+
+
+def render_floor_target_pairs(rig, target, floor_xy, yaw_deg=0.0, count=20, room='office',
+                              thickness_m=0.005, hot=30.0, cold=20.5, seed=0, supersample=4,
+                              noise=True):
+    """
+    Render ``count`` raw pairs (uint16) of a static room with a target lying on its floor.
+
+    For ``st-stereo rig-pose``: warm discs (``hot``) on a mat at about the floor's
+    temperature (``cold``), degrees Celsius, in one of the sequences' rooms
+    (``st_stereo.sim.sequences.ROOMS``). The scene is static; the pairs differ by the
+    sensors' noise (8.7 frames per second, no flat-field correction).
+    """
+    from st_stereo.sim.sequences import LABELS, load_textures, ROOMS
+    shell, furniture = ROOMS[room](load_textures())
+    origin, rotation = floor_target_pose(target, floor_xy, yaw_deg, thickness_m)
+    label = max(LABELS) + 1
+    plate = Plate(label, origin, rotation, PatternMaterial(target, hot=hot, cold=cold))
+    scene = Scene(shell, list(furniture) + [plate], {**LABELS, label: 'target'})
+    shape = (rig.height, rig.width)
+    sensors = [LeptonSensor(SensorModel(seed=seed * 2 + 1, ffc_period_s=0.0), shape),
+               LeptonSensor(SensorModel(seed=seed * 2 + 2, gain=1.03, offset_counts=60.0,
+                                        ffc_period_s=0.0), shape)]
+    temperatures = [render_temperature(scene, camera, supersample) for camera in rig.cameras()]
+    return [tuple(sensor.frame(temperature, index / 8.7, noise)
+                  for sensor, temperature in zip(sensors, temperatures))
+            for index in range(count)]

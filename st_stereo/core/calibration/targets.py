@@ -153,7 +153,31 @@ MIN_SPACING_PX = {'circles': 3.5, 'acircles': 3.5, 'chessboard': 3.0}
 REJECTIONS = ('not found', 'too small', 'fit failed', 'not planar')
 
 
-def find_target(image, target, max_homography_rms=0.5):
+def _refine(image, rough, target, warm):
+    """Fit every point of a grid around its rough position (``target_refinement``)."""
+    if target.kind == 'chessboard':
+        return refine_chessboard_corners(image, rough, target.pattern_size)
+    return refine_circle_centres(image, rough, warm)
+
+
+def grid_reseeded(target, refined):
+    """
+    Start positions for a second fit: the valid fitted points, the others from the grid.
+
+    A point whose rough position was more than a fit's reach off (OpenCV's detector can
+    misplace a blob by over a pixel when the grid is small and foreshortened) is placed where
+    the homography of the valid points puts it.
+    """
+    model = target.object_points()[:, :2].astype(np.float64)
+    valid = refined.valid
+    homography, _ = cv2.findHomography(model[valid], refined.points[valid], 0)
+    if homography is None:
+        return refined.points
+    predicted = cv2.perspectiveTransform(model.reshape(-1, 1, 2), homography).reshape(-1, 2)
+    return np.where(valid[:, None], refined.points, predicted)
+
+
+def find_target(image, target, max_homography_rms=0.5, reseed=False):
     """
     Find the target in one raw image: (Detection, None) or (None, the reason it was rejected).
 
@@ -163,7 +187,9 @@ def find_target(image, target, max_homography_rms=0.5):
     ``not found`` (no full grid), ``too small`` (points nearer to each other than
     ``MIN_SPACING_PX``), ``fit failed`` (a point did not fit its model), ``not planar``
     (points off the target's homography by more than ``max_homography_rms``: a partial or
-    mis-ordered grid).
+    mis-ordered grid). With ``reseed``, points that did not fit from OpenCV's positions are
+    fitted again from the grid's homography through the others (at least half of them
+    valid): ``grid_reseeded``.
     """
     base = to_u8(image)
     found, reasons = [], []
@@ -174,10 +200,10 @@ def find_target(image, target, max_homography_rms=0.5):
         if nearest_spacing(rough) < MIN_SPACING_PX[target.kind]:
             reasons.append('too small')
             continue
-        if target.kind == 'chessboard':
-            refined = refine_chessboard_corners(image, rough, target.pattern_size)
-        else:
-            refined = refine_circle_centres(image, rough, warm)
+        refined = _refine(image, rough, target, warm)
+        if reseed and not refined.valid.all() and \
+                refined.valid.sum() >= max(4, target.count // 2):
+            refined = _refine(image, grid_reseeded(target, refined), target, warm)
         if not refined.valid.all():
             reasons.append('fit failed')
             continue

@@ -1,0 +1,272 @@
+"""
+``st-stereo rig-pose``: the rig's height, tilt and roll from pairs of a target lying on the floor.
+
+Lay a heated planar target (warm discs on a mat, a heated chessboard) flat on the floor where
+both cameras see it, record a few seconds of raw pairs (a rosbag2, two raw captures or image
+files, as for ``st-stereo calibrate``), and run this with the stereo calibration. Each pair
+gives the target's pose (``st_stereo.core.floor_pose``); the median over the pairs is written
+as a rig pose YAML (``config/rig_pose.yaml``'s fields) that the launch files' transforms and
+the people node read. The position in the room and the yaw are copied from ``--base`` (the
+floor does not give them).
+"""
+
+import dataclasses
+import pathlib
+
+import numpy as np
+
+from st_stereo.core.calibration.files import CalibrationError, check_stereo_pair, \
+    load_calibration
+from st_stereo.core.calibration.targets import CalibrationTarget, find_target, \
+    MIN_SPACING_PX, REJECTIONS
+from st_stereo.core.floor_pose import combine_views, floor_view, FloorPoseError, \
+    MIN_TILT_FOR_ROLL_DEG
+from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_yaml, RigPose
+from st_stereo.tools.calibrate import pairs_from_bag, pairs_from_captures, pairs_from_directory
+
+
+# A stereo view's points reproject this far off (median over the views, pixels) when the
+# target's size and the baseline disagree: on the simulator 0.03 px with the right spacing,
+# 0.21 px with a spacing 4 % off (a height 2.9 cm off), 1.1 px with 20 % off.
+MAX_STEREO_RMS_PX = 0.15
+
+
+class RigPoseInputError(ValueError):
+    """Input from which ``rig-pose`` cannot work (names the file, field or problem)."""
+
+
+@dataclasses.dataclass
+class FloorTargetViews:
+    """Every pair's view of the floor target, and what was not found and why."""
+
+    target: CalibrationTarget
+    left: object                # CameraCalibration
+    right: object
+    thickness_m: float = 0.0
+    views: list = dataclasses.field(default_factory=list)
+    pairs: int = 0
+    seen: dict = dataclasses.field(default_factory=lambda: {'both': 0, 'left only': 0,
+                                                            'right only': 0, 'neither': 0})
+    rejected: dict = dataclasses.field(default_factory=lambda: {
+        side: dict.fromkeys(REJECTIONS, 0) for side in ('left', 'right')})
+
+    def add(self, name, left_image, right_image):
+        """Find the target in one raw pair and keep the floor it gives."""
+        self.pairs += 1
+        found = []
+        for side, image, calibration in (('left', left_image, self.left),
+                                         ('right', right_image, self.right)):
+            image = np.asarray(image)
+            if image.shape != (calibration.height, calibration.width):
+                raise RigPoseInputError(
+                    f'{name}: the {side} image is {image.shape[1]}x{image.shape[0]} but its '
+                    f'calibration is for {calibration.width}x{calibration.height}')
+            detection, reason = find_target(image, self.target, reseed=True)
+            if reason:
+                self.rejected[side][reason] += 1
+            found.append(None if detection is None else detection.points)
+        key = {(True, True): 'both', (True, False): 'left only', (False, True): 'right only',
+               (False, False): 'neither'}[(found[0] is not None, found[1] is not None)]
+        self.seen[key] += 1
+        if key != 'neither':
+            self.views.append(floor_view(name, self.target.object_points(), found[0], found[1],
+                                         self.left, self.right, self.thickness_m))
+
+    def why_none(self):
+        """Explain why no pair gave a view (the most frequent rejection, with a hint)."""
+        counts = {reason: sum(self.rejected[side][reason] for side in self.rejected)
+                  for reason in REJECTIONS}
+        reason = max(counts, key=counts.get)
+        hints = {
+            'not found': 'check that the whole grid is in view and the rows / cols given',
+            'too small': f'its points lie closer than {MIN_SPACING_PX[self.target.kind]} px in '
+                         'the image: use a larger spacing, or lay it nearer the rig',
+            'fit failed': 'its points could not be located (too blurred or too faint?)',
+            'not planar': 'the grid was found only partly or misordered',
+        }
+        return f'{reason} in {counts[reason]} images: {hints[reason]}'
+
+
+def pose_yaml(pose, floor, base_source):
+    """Return the rig pose YAML: ``config/rig_pose.yaml``'s fields, with their sources."""
+    def span(field, unit):
+        low, high = floor.spread[field]
+        return f'{low:.4f} to {high:.4f} {unit} over the views (5th-95th percentile)'
+    header = ['# The rig pose (st_stereo/core/rig_pose.py): height, tilt and roll fitted by',
+              f'# st-stereo rig-pose from {floor.views} views of a target on the floor; world '
+              'and', f'# rig frames, position and yaw from {base_source}.']
+    if not floor.roll_determined:
+        header.append(f'# Looking straight down (tilt < {MIN_TILT_FOR_ROLL_DEG} deg) the roll '
+                      'is the yaw: set yaw_deg to turn the image.')
+    return rig_pose_yaml(pose, header, {'height_m': span('height_m', 'm'),
+                                        'tilt_deg': span('tilt_deg', 'deg'),
+                                        'roll_deg': span('roll_deg', 'deg')})
+
+
+def chosen_views(views):
+    """
+    Return the views the pose is taken from: those of both cameras when there are any.
+
+    With both cameras the target's distance rests on the baseline as well as on its size; a
+    one-camera view at 3-4 m measured 5 cm and 1 deg off on the simulator (docs/people.md).
+    """
+    stereo = [v for v in views.views if v.rms_left_px is not None and
+              v.rms_right_px is not None]
+    return stereo or list(views.views)
+
+
+def stereo_rms(views):
+    """Median over the views of both cameras of the larger reprojection rms (None: none)."""
+    rms = [max(v.rms_left_px, v.rms_right_px) for v in views
+           if v.rms_left_px is not None and v.rms_right_px is not None]
+    return float(np.median(rms)) if rms else None
+
+
+def estimate(views, base, max_stereo_rms_px=MAX_STEREO_RMS_PX):
+    """
+    Return ``(RigPose, FloorPose)``: ``base`` with the fitted height, tilt and roll.
+
+    Refused (RigPoseInputError) when the views of both cameras reproject more than
+    ``max_stereo_rms_px`` off: the target's size and the calibration's baseline disagree.
+    """
+    chosen = chosen_views(views)
+    rms = stereo_rms(chosen)
+    if rms is not None and rms > max_stereo_rms_px:
+        raise RigPoseInputError(
+            f'the target reprojects {rms:.2f} px off in the two cameras (limit '
+            f'{max_stereo_rms_px} px): its size (spacing {views.target.spacing_m} m) and the '
+            "calibration's baseline disagree, or the calibration is not this rig's (on the "
+            'simulator a spacing 4 % off gave 0.21 px and a height 2.9 cm off)')
+    floor = combine_views(chosen)
+    roll = floor.roll_deg if floor.roll_determined else 0.0
+    # Rounded far below the accuracy (millimetres, hundredths of a degree): a readable file.
+    return dataclasses.replace(base, height_m=round(floor.height_m, 4),
+                               tilt_deg=round(floor.tilt_deg, 3), roll_deg=round(roll, 3)), floor
+
+
+def report_text(views, pose, floor):
+    """Return the report printed after the fit."""
+    rms = {side: [getattr(v, f'rms_{side}_px') for v in views.views
+                  if getattr(v, f'rms_{side}_px') is not None] for side in ('left', 'right')}
+    lines = [f'pairs: {views.pairs}; target seen by both cameras in {views.seen["both"]}, the '
+             f'left only in {views.seen["left only"]}, the right only in '
+             f'{views.seen["right only"]}, neither in {views.seen["neither"]}']
+    for side in ('left', 'right'):
+        rejected = ', '.join(f'{reason} {count}' for reason, count in
+                             views.rejected[side].items() if count)
+        if rejected:
+            lines.append(f'{side} images without the target: {rejected}')
+        if rms[side]:
+            lines.append(f'{side} reprojection rms (px): median {np.median(rms[side]):.3f}, max '
+                         f'{max(rms[side]):.3f}')
+    lines.append('| field | value | 5th-95th percentile over the views |')
+    lines.append('|---|---:|---|')
+    for field, unit in (('height_m', 'm'), ('tilt_deg', 'deg'), ('roll_deg', 'deg')):
+        low, high = floor.spread[field]
+        lines.append(f'| {field} | {getattr(pose, field):.4f} | {low:.4f} - {high:.4f} {unit} |')
+    if floor.views < len(views.views):
+        lines.append(f'used the {floor.views} views of both cameras; the '
+                     f'{len(views.views) - floor.views} views of one camera only were left out')
+    elif not views.seen['both']:
+        lines.append('warning: no pair showed the target to both cameras: the height rests on '
+                     "the target's size alone (on the simulator such views were up to 5 cm and "
+                     '1 deg off): place the target where both cameras see all of it')
+    if not floor.roll_determined:
+        lines.append(f'tilt below {MIN_TILT_FOR_ROLL_DEG} deg: the roll is not determined (it is '
+                     'the yaw when looking straight down); written as 0')
+    return '\n'.join(lines)
+
+
+def calibrations(args):
+    """Return the CameraCalibrations named by ``--calibration`` or ``--left/--right``."""
+    if args.calibration and (args.left or args.right):
+        raise RigPoseInputError('give --calibration DIR or --left FILE --right FILE, not both')
+    if args.calibration:
+        paths = [pathlib.Path(args.calibration) / f'{side}.yaml' for side in ('left', 'right')]
+    elif args.left and args.right:
+        paths = [pathlib.Path(args.left), pathlib.Path(args.right)]
+    else:
+        raise RigPoseInputError('the stereo calibration is needed: --calibration DIR (with '
+                                'left.yaml and right.yaml) or --left FILE --right FILE')
+    try:
+        left, right = (load_calibration(path) for path in paths)
+        check_stereo_pair(left, right, str(paths[0]), str(paths[1]))
+    except (CalibrationError, OSError) as error:
+        raise RigPoseInputError(str(error)) from None
+    return left, right
+
+
+def main(args):
+    """Run ``st-stereo rig-pose``."""
+    from tqdm import tqdm
+    target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
+    sources = [s for s in (args.images, args.bag, args.capture) if s]
+    if len(sources) != 1:
+        raise RigPoseInputError('give exactly one input: --images DIR, --bag BAG or '
+                                '--capture LEFT RIGHT')
+    if not args.thickness >= 0:
+        raise RigPoseInputError(f'--thickness: expected the target surface height above the '
+                                f'floor (>= 0 m), got {args.thickness}')
+    left, right = calibrations(args)
+    base = load_rig_pose(args.base) if args.base else RigPose()
+    base_source = args.base or 'the defaults (x 0, y 0, yaw 0)'
+    if args.images:
+        pairs = pairs_from_directory(args.images)
+    elif args.bag:
+        pairs = pairs_from_bag(args.bag)
+    else:
+        pairs = pairs_from_captures(*args.capture)
+    views = FloorTargetViews(target, left, right, args.thickness)
+    with tqdm(desc='finding the target', unit='pair', disable=args.quiet) as bar:
+        for name, left_image, right_image in pairs:
+            views.add(name, left_image, right_image)
+            bar.update(1)
+    if views.pairs == 0:
+        raise RigPoseInputError('no pairs in the input')
+    if not views.views:
+        raise RigPoseInputError(f'the target was not found in any of {views.pairs} pairs: '
+                                f'{views.why_none()}')
+    try:
+        pose, floor = estimate(views, base, args.max_rms)
+    except FloorPoseError as error:
+        raise RigPoseInputError(str(error)) from None
+    print(report_text(views, pose, floor))
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(pose_yaml(pose, floor, base_source))
+    written = load_rig_pose(out)        # what the launch files and the people node will read
+    print(f'wrote {out}: ' + ', '.join(f'{field} {getattr(written, field)}'
+                                       for field in POSE_FIELDS))
+    return 0
+
+
+def add_parser(sub):
+    """Add ``rig-pose`` to the ``st-stereo`` parser."""
+    p = sub.add_parser('rig-pose', help="the rig's height, tilt and roll from pairs of a target "
+                       'lying on the floor')
+    p.add_argument('--images', help='directory of pairs (left*/right* or left/ and right/)')
+    p.add_argument('--bag', help='rosbag2 with */left/image_raw and */right/image_raw')
+    p.add_argument('--capture', nargs=2, metavar=('LEFT', 'RIGHT'),
+                   help='two raw Lepton captures')
+    p.add_argument('--calibration', help='directory with the stereo calibration (left.yaml, '
+                   'right.yaml, as st-stereo calibrate writes it)')
+    p.add_argument('--left', help='left camera calibration YAML (instead of --calibration)')
+    p.add_argument('--right', help='right camera calibration YAML (instead of --calibration)')
+    p.add_argument('--target', required=True, choices=('circles', 'acircles', 'chessboard'),
+                   help='circles: symmetric grid; acircles: asymmetric grid; chessboard')
+    p.add_argument('--rows', type=int, required=True,
+                   help='rows of circles, or of inner corners for a chessboard')
+    p.add_argument('--cols', type=int, required=True,
+                   help='circles per row, or inner corners per row for a chessboard')
+    p.add_argument('--spacing', type=float, required=True,
+                   help='square side, or distance between circle centres in a row, metres')
+    p.add_argument('--thickness', type=float, default=0.0,
+                   help="the target's surface above the floor, metres (default 0)")
+    p.add_argument('--base', help='rig pose YAML whose frames, position and yaw are kept '
+                   '(default: x 0, y 0, yaw 0, frames map / stereo_rig)')
+    p.add_argument('--max-rms', type=float, default=MAX_STEREO_RMS_PX,
+                   help='refuse when the views of both cameras reproject farther off than '
+                   f'this, pixels (default {MAX_STEREO_RMS_PX})')
+    p.add_argument('--out', required=True, help='rig pose YAML to write')
+    p.add_argument('--quiet', action='store_true', help='no progress bar')
+    p.set_defaults(handler=main)
