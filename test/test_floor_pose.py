@@ -75,6 +75,21 @@ def test_an_exact_view_gives_the_exact_pose(seen):
         target_pose(CIRCLES.object_points(), None, None, left, right)
 
 
+@pytest.mark.parametrize('flip', ['rows', 'columns', 'both'])
+def test_the_cameras_may_number_the_grid_differently(flip):
+    # Seen with a grid turned 45 degrees on the floor: the right image's rows reversed.
+    rig = dataclasses.replace(realistic_rig(), mount_height_m=2.6, tilt_deg=60.0, roll_deg=0.5)
+    left_points, right_points, _ = exact_views(rig, CIRCLES, (-0.2, 1.4), 45.0)
+    grid = right_points.reshape(CIRCLES.rows, CIRCLES.cols, 2)
+    grid = {'rows': grid[::-1], 'columns': grid[:, ::-1], 'both': grid[::-1, ::-1]}[flip]
+    result = floor_view('v', CIRCLES, left_points, grid.reshape(-1, 2), *rig.calibrations())
+    truth = rig.rig_pose()
+    assert max(result.rms_left_px, result.rms_right_px) < 1e-6
+    assert result.height_m == pytest.approx(truth.height_m, abs=1e-6)
+    assert (result.tilt_deg, result.roll_deg) == pytest.approx((truth.tilt_deg, truth.roll_deg),
+                                                               abs=1e-5)
+
+
 def test_stereo_extrinsics_of_a_rolled_rig_do_not_change():
     # The rig's bar rolls with its cameras: the calibration does not depend on the mount.
     level, rolled = realistic_rig(), dataclasses.replace(realistic_rig(), roll_deg=6.0,
@@ -194,8 +209,7 @@ def test_a_straight_down_rig_leaves_the_roll_to_the_yaw():
     left, right = rig.calibrations()
     left_points, right_points, _ = exact_views(rig, CIRCLES, (-0.3, 0.0))
     views = FloorTargetViews(CIRCLES, left, right)
-    views.views.append(floor_view('v', CIRCLES.object_points(), left_points, right_points,
-                                  left, right))
+    views.views.append(floor_view('v', CIRCLES, left_points, right_points, left, right))
     pose, floor = estimate(views, RigPose(yaw_deg=15.0))
     assert floor.tilt_deg == pytest.approx(0.0, abs=1e-4) and not floor.roll_determined
     assert (pose.roll_deg, pose.yaw_deg) == (0.0, 15.0)

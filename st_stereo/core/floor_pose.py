@@ -151,10 +151,34 @@ class FloorView:
     rms_right_px: object
 
 
-def floor_view(name, object_points, left_points, right_points, left, right, thickness_m=0.0):
-    """Height, tilt and roll of the rig from one pair's detections of a floor target."""
-    rotation, translation, (rms_left, rms_right) = target_pose(
-        object_points, left_points, right_points, left, right)
+def grid_orders(points, rows, cols):
+    """
+    Return the four numberings of a found grid that its symmetry cannot tell apart.
+
+    As found, with its rows reversed, its columns reversed, and both: the detector decides in
+    each image apart which corner comes first and which way the rows run, so the two cameras
+    may number a grid turned on the floor differently (seen with a grid turned 45 degrees:
+    rows reversed in one image).
+    """
+    grid = np.asarray(points, dtype=np.float64).reshape(rows, cols, 2)
+    return [grid.reshape(-1, 2), grid[::-1].reshape(-1, 2), grid[:, ::-1].reshape(-1, 2),
+            grid[::-1, ::-1].reshape(-1, 2)]
+
+
+def floor_view(name, target, left_points, right_points, left, right, thickness_m=0.0):
+    """
+    Height, tilt and roll of the rig from one pair's detections of a floor target.
+
+    ``target``: the CalibrationTarget. With both cameras, the right camera's points are taken
+    in each of the grid's four numberings (``grid_orders``) and the one that agrees with the
+    left camera's (the lowest reprojection error) is kept.
+    """
+    objects = target.object_points()
+    orders = [right_points] if left_points is None or right_points is None else \
+        grid_orders(right_points, target.rows, target.cols)
+    rotation, translation, (rms_left, rms_right) = min(
+        (target_pose(objects, left_points, order, left, right) for order in orders),
+        key=lambda fit: max(r for r in fit[2] if r is not None))
     up, height = floor_of_target(rotation, translation, thickness_m)
     tilt, roll = tilt_roll_of_up(up)
     return FloorView(name, height, tilt, roll, rms_left, rms_right)

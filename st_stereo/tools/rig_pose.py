@@ -69,7 +69,7 @@ class FloorTargetViews:
                (False, False): 'neither'}[(found[0] is not None, found[1] is not None)]
         self.seen[key] += 1
         if key != 'neither':
-            self.views.append(floor_view(name, self.target.object_points(), found[0], found[1],
+            self.views.append(floor_view(name, self.target, found[0], found[1],
                                          self.left, self.right, self.thickness_m))
 
     def why_none(self):
