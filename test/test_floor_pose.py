@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 from st_stereo.cli import main
+from st_stereo.core.calibration.files import load_calibration, save_calibration
 from st_stereo.core.calibration.target_refinement import Refinement
 from st_stereo.core.calibration.targets import CalibrationTarget, grid_reseeded
 from st_stereo.core.floor_pose import combine_views, floor_of_target, floor_view, \
@@ -20,9 +21,11 @@ from st_stereo.core.floor_pose import combine_views, floor_of_target, floor_view
 from st_stereo.core.people import rectified_to_world, world_from_rectified
 from st_stereo.core.rig_pose import load_rig_pose, rig_pose_yaml, rig_to_optical_rotation, \
     RigPose, stereo_extrinsics
+from st_stereo.sim.recording import write_pairs_bag
 from st_stereo.sim.rig import realistic_rig
-from st_stereo.sim.targets import floor_target_pose
-from st_stereo.tools.rig_pose import estimate, FloorTargetViews, pose_yaml
+from st_stereo.sim.targets import floor_target_pose, render_floor_target_pairs
+from st_stereo.tools.rig_pose import estimate, FloorTargetViews, pose_yaml, report_text, \
+    RigPoseInputError
 
 CIRCLES = CalibrationTarget('circles', 4, 5, 0.25)
 TARGET_ARGS = ['--target', 'circles', '--rows', '4', '--cols', '5', '--spacing', '0.25']
@@ -110,7 +113,8 @@ def test_a_rolled_rigs_true_pose_is_what_the_people_stage_uses():
 
 
 def view(height, tilt=50.0, roll=0.0, right=0.03):
-    return FloorView('v', height, tilt, roll, 0.03, right)
+    up = rig_to_optical_rotation(RigPose(tilt_deg=tilt, roll_deg=roll)).T @ [0.0, 0.0, 1.0]
+    return FloorView('v', height, tilt, roll, 0.03, right, tuple(up), 1.0)
 
 
 def test_views_combine_by_their_median():
@@ -184,7 +188,9 @@ def test_rig_pose_says_what_is_wrong(tmp_path, capsys):
          'not found in any of 4 pairs: not found'),
         (['--images', str(out), '--calibration', str(out), '--target', 'circles', '--rows', '4',
           '--cols', '5', '--spacing', '0.24', '--out', fitted],
-         "its size (spacing 0.24 m) and the calibration's baseline disagree"),
+         'larger than --spacing 0.24 m says'),
+        (['--images', str(out), '--calibration', str(out), *TARGET_ARGS, '--max-rms', '0',
+          '--out', fitted], '--max-rms: expected a positive number'),
         (['--images', str(out), '--calibration', str(out), '--target', 'circles', '--rows', '4',
           '--cols', '5', '--spacing', '0.25', '--thickness', '-1', '--out', fitted],
          '--thickness'),
@@ -203,15 +209,73 @@ def test_rig_pose_says_what_is_wrong(tmp_path, capsys):
     assert 'the left image is 40x30 but its calibration is for 80x60' in capsys.readouterr().err
 
 
-def test_a_straight_down_rig_leaves_the_roll_to_the_yaw():
-    # Looking straight down, the floor cannot tell an image roll from a yaw: roll 0 written.
-    rig = dataclasses.replace(realistic_rig(), tilt_deg=90.0)
+def test_a_nearly_straight_down_rig_keeps_its_measured_roll():
+    # 1.5 deg from straight down the roll is still the tilt's direction: written as measured.
+    rig = dataclasses.replace(realistic_rig(), tilt_deg=88.5, roll_deg=90.0)
     left, right = rig.calibrations()
     left_points, right_points, _ = exact_views(rig, CIRCLES, (-0.3, 0.0))
     views = FloorTargetViews(CIRCLES, left, right)
     views.views.append(floor_view('v', CIRCLES, left_points, right_points, left, right))
     pose, floor = estimate(views, RigPose(yaw_deg=15.0))
-    assert floor.tilt_deg == pytest.approx(0.0, abs=1e-4) and not floor.roll_determined
-    assert (pose.roll_deg, pose.yaw_deg) == (0.0, 15.0)
-    assert pose.height_m == pytest.approx(rig.rig_pose().height_m, abs=1e-4)
-    assert 'the roll is the yaw' in pose_yaml(pose, floor, 'test')
+    truth = rig.rig_pose()
+    assert (pose.tilt_deg, pose.roll_deg) == pytest.approx((truth.tilt_deg, truth.roll_deg),
+                                                           abs=2e-3)
+    assert pose.tilt_deg == pytest.approx(1.5, abs=2e-3) and pose.yaw_deg == 15.0
+    assert pose.height_m == pytest.approx(truth.height_m, abs=1e-4)
+    assert not floor.roll_determined and 'poorly determined' in pose_yaml(pose, floor, 'test')
+
+
+def test_a_roll_near_180_degrees_is_not_averaged_to_0():
+    # A camera mounted upside down: views either side of +-180 deg.
+    views = []
+    for roll in (179.95, -179.97, 179.98, -179.94):
+        up = rig_to_optical_rotation(RigPose(tilt_deg=50.0, roll_deg=roll)).T @ [0, 0, 1.0]
+        views.append(FloorView('v', 2.9, 50.0, roll, 0.03, 0.03, tuple(up), 1.0))
+    floor = combine_views(views)
+    assert abs(abs(floor.roll_deg) - 180.0) < 0.05 and floor.tilt_deg == pytest.approx(50.0)
+    low, high = floor.spread['roll_deg']
+    assert high - low < 0.15       # the views span 0.12 deg, not 360
+
+
+def test_one_camera_views_need_to_be_asked_for():
+    rig = realistic_rig()
+    left, right = rig.calibrations()
+    left_points, _, _ = exact_views(rig, CIRCLES, (-0.3, 2.4))
+    views = FloorTargetViews(CIRCLES, left, right)
+    views.views.append(floor_view('v', CIRCLES, left_points, None, left, right))
+    with pytest.raises(RigPoseInputError, match='--allow-one-camera'):
+        estimate(views, RigPose())
+    pose, _ = estimate(views, RigPose(), allow_one_camera=True)
+    assert pose.height_m == pytest.approx(rig.rig_pose().height_m, abs=1e-3)
+    report = report_text(views, pose, combine_views(views.views))
+    assert 'no pair showed the target to both cameras' in report
+
+
+def test_a_fisheye_calibration_is_refused_by_name(tmp_path, capsys):
+    out = render_session(tmp_path, capsys)
+    fisheye = dataclasses.replace(load_calibration(out / 'left.yaml'),
+                                  distortion_model='equidistant',
+                                  distortion=np.array([-0.05, 0.01, 0.0, 0.0]))
+    save_calibration(fisheye, out / 'left.yaml')
+    assert main(['rig-pose', '--quiet', '--images', str(out), '--calibration', str(out),
+                 *TARGET_ARGS, '--out', str(tmp_path / 'pose.yaml')]) == 2
+    assert "distortion_model 'equidistant' is not supported" in capsys.readouterr().err
+
+
+def test_a_bag_stamping_each_camera_apart_is_paired_by_nearest_stamp(tmp_path, capsys):
+    rig = dataclasses.replace(realistic_rig(), roll_deg=2.0)
+    pairs = render_floor_target_pairs(rig, CIRCLES, (0.0, 2.4), count=4)
+    bag = write_pairs_bag(pairs, tmp_path / 'bag', right_offset_s=0.02)
+    calibration = tmp_path / 'calibration'
+    calibration.mkdir()
+    for side, camera in zip(('left', 'right'), rig.calibrations()):
+        save_calibration(camera, calibration / f'{side}.yaml')
+    out = tmp_path / 'pose.yaml'
+    arguments = ['rig-pose', '--quiet', '--bag', str(bag), '--calibration', str(calibration),
+                 *TARGET_ARGS, '--thickness', '0.005', '--out', str(out)]
+    assert main(arguments) == 0
+    assert 'seen by both cameras in 4' in capsys.readouterr().out
+    assert load_rig_pose(out).roll_deg == pytest.approx(2.0, abs=0.5)
+    assert main(arguments + ['--max-pair-delta', '0.01']) == 2
+    assert 'no pairs in the input (4 left and 4 right images, none within 0.01 s' in \
+        capsys.readouterr().err

@@ -17,7 +17,8 @@ normal in the left camera's raw optical frame and ``p`` any point of the target'
 - ``R_rig_optical = R_y(-tilt) M R_z(roll)`` gives ``n = (-sin(tilt) sin(roll),
   -sin(tilt) cos(roll), -cos(tilt))``, so ``tilt = acos(-n_z)`` and
   ``roll = atan2(-n_x, -n_y)``. Looking straight down (tilt 0) roll and yaw are the same
-  rotation about the vertical and the floor fixes neither.
+  rotation about the vertical and the floor fixes neither; near it the roll is still what
+  the floor's normal says (the tilt's direction), only measured less precisely.
 
 The yaw and the position in the room are not the floor's to give: the user sets them.
 """
@@ -31,8 +32,10 @@ from scipy.optimize import least_squares
 
 from st_stereo.core.rig_pose import stereo_extrinsics
 
-# Below this tilt (degrees from straight down) the roll is not determined by the floor.
+# Below this tilt (degrees from straight down) the roll is poorly determined by the floor.
 MIN_TILT_FOR_ROLL_DEG = 2.0
+# Distortion models ``cv2.projectPoints`` / ``solvePnP`` apply (5 or 8 coefficients).
+SUPPORTED_DISTORTION = ('plumb_bob', 'rational_polynomial')
 
 
 class FloorPoseError(ValueError):
@@ -68,6 +71,14 @@ def floor_of_target(rotation, translation, thickness_m=0.0):
     origin = np.asarray(translation, dtype=np.float64).reshape(3)
     up = normal if normal @ origin < 0 else -normal
     return up, float(-up @ origin + thickness_m)
+
+
+def check_distortion_model(calibration, source='calibration'):
+    """Refuse a distortion model the perspective-n-point fit would apply wrongly."""
+    if calibration.distortion_model not in SUPPORTED_DISTORTION:
+        raise FloorPoseError(f'{source}: distortion_model {calibration.distortion_model!r} is '
+                             f'not supported here (expected one of '
+                             f'{", ".join(SUPPORTED_DISTORTION)})')
 
 
 def _project(object_points, rotation_vector, translation, calibration):
@@ -139,6 +150,30 @@ def target_pose(object_points, left_points, right_points, left, right):
     return cv2.Rodrigues(rotation_vector)[0], translation, tuple(rms)
 
 
+def stereo_scale(object_points, left_points, right_points, left, right, rotation,
+                 translation):
+    """
+    Return the target's size as the two cameras measure it, relative to its description.
+
+    The pose and a scale factor of the target's points are fitted to both cameras at once,
+    starting from ``rotation``, ``translation``: with two cameras the baseline gives the
+    scale, so a target described with a wrong spacing (or a calibration of another rig)
+    shows as a factor away from 1.
+    """
+    objects = np.asarray(object_points, dtype=np.float64)
+    extrinsics = stereo_extrinsics(left, right)
+
+    def residuals(params):
+        scaled = objects * math.exp(params[6])
+        r, t = _right_pose(params[:3], params[3:6], extrinsics)
+        return np.concatenate([
+            (_project(scaled, params[:3], params[3:6], left) - left_points).ravel(),
+            (_project(scaled, r, t, right) - right_points).ravel()])
+    start = np.concatenate([cv2.Rodrigues(np.asarray(rotation))[0].ravel(),
+                            np.asarray(translation).ravel(), [0.0]])
+    return float(math.exp(least_squares(residuals, start, method='lm').x[6]))
+
+
 @dataclasses.dataclass(frozen=True)
 class FloorView:
     """The floor as one pair's view of the target gives it."""
@@ -149,6 +184,13 @@ class FloorView:
     roll_deg: float
     rms_left_px: object         # float, or None when the left camera did not see the target
     rms_right_px: object
+    up: tuple = (0.0, 0.0, -1.0)    # the floor's upward unit normal, left raw optical frame
+    scale: object = None        # the target's size by the baseline / as described (stereo)
+
+    @property
+    def stereo(self):
+        """Whether both cameras saw the target."""
+        return self.rms_left_px is not None and self.rms_right_px is not None
 
 
 def grid_orders(points, rows, cols):
@@ -171,45 +213,64 @@ def floor_view(name, target, left_points, right_points, left, right, thickness_m
 
     ``target``: the CalibrationTarget. With both cameras, the right camera's points are taken
     in each of the grid's four numberings (``grid_orders``) and the one that agrees with the
-    left camera's (the lowest reprojection error) is kept.
+    left camera's (the lowest reprojection error) is kept; the target's size as the baseline
+    measures it is fitted too (``stereo_scale``).
     """
     objects = target.object_points()
     orders = [right_points] if left_points is None or right_points is None else \
         grid_orders(right_points, target.rows, target.cols)
-    rotation, translation, (rms_left, rms_right) = min(
-        (target_pose(objects, left_points, order, left, right) for order in orders),
-        key=lambda fit: max(r for r in fit[2] if r is not None))
+    fits = [(order, target_pose(objects, left_points, order, left, right)) for order in orders]
+    right_points, (rotation, translation, (rms_left, rms_right)) = min(
+        fits, key=lambda fit: max(r for r in fit[1][2] if r is not None))
     up, height = floor_of_target(rotation, translation, thickness_m)
     tilt, roll = tilt_roll_of_up(up)
-    return FloorView(name, height, tilt, roll, rms_left, rms_right)
+    scale = None
+    if rms_left is not None and rms_right is not None:
+        scale = stereo_scale(objects, left_points, right_points, left, right, rotation,
+                             translation)
+    return FloorView(name, height, tilt, roll, rms_left, rms_right,
+                     tuple(float(v) for v in up), scale)
 
 
 @dataclasses.dataclass(frozen=True)
 class FloorPose:
-    """The rig's height, tilt and roll over many views: medians and their spread."""
+    """The rig's height, tilt and roll over many views, and their spread."""
 
     height_m: float
     tilt_deg: float
     roll_deg: float
     views: int
     spread: dict                # field -> (5th, 95th percentile) over the views
-    roll_determined: bool       # False looking straight down (roll and yaw coincide)
+    roll_determined: bool       # False near straight down (roll and yaw nearly coincide)
+
+
+def wrapped_deg(angle):
+    """Return an angle in degrees wrapped into [-180, 180)."""
+    return (np.asarray(angle, dtype=np.float64) + 180.0) % 360.0 - 180.0
 
 
 def combine_views(views):
     """
-    Combine the views of a static rig and target: the median of each field.
+    Combine the views of a static rig and target: median height, median floor normal.
 
-    The target does not move, so the views differ by sensor noise alone; the median also
-    keeps a few views with a wrongly ordered grid from moving the result. The 5th-95th
-    percentile range of each field is reported as its spread.
+    The target does not move, so the views differ by sensor noise alone; medians also keep a
+    few views with a wrongly ordered grid from moving the result. The normal's components are
+    combined (then normalised), not the angles: a roll near +-180 degrees (a camera mounted
+    upside down) would otherwise average to 0. The 5th-95th percentile range of each field
+    is reported as its spread (the roll's as the combined roll plus its views' wrapped
+    differences from it).
     """
     views = list(views)
     if not views:
         raise FloorPoseError('no view of the target: the floor cannot be found')
-    fields = ('height_m', 'tilt_deg', 'roll_deg')
-    values = {f: np.array([getattr(v, f) for v in views]) for f in fields}
-    medians = {f: float(np.median(values[f])) for f in fields}
-    spread = {f: tuple(float(x) for x in np.percentile(values[f], [5, 95])) for f in fields}
-    return FloorPose(medians['height_m'], medians['tilt_deg'], medians['roll_deg'], len(views),
-                     spread, medians['tilt_deg'] >= MIN_TILT_FOR_ROLL_DEG)
+    heights = np.array([v.height_m for v in views])
+    up = np.median(np.array([v.up for v in views]), axis=0)
+    tilt, roll = tilt_roll_of_up(up)
+    tilts = np.array([v.tilt_deg for v in views])
+    rolls = roll + wrapped_deg(np.array([v.roll_deg for v in views]) - roll)
+
+    def span(values):
+        return tuple(float(x) for x in np.percentile(values, [5, 95]))
+    return FloorPose(float(np.median(heights)), tilt, roll, len(views),
+                     {'height_m': span(heights), 'tilt_deg': span(tilts),
+                      'roll_deg': span(rolls)}, tilt >= MIN_TILT_FOR_ROLL_DEG)

@@ -154,12 +154,14 @@ def _pair_info_message(typestore, stamp_ns, acquired_ns, frame_indices):
     return types['diagnostic_msgs/msg/DiagnosticArray'](header=header, status=[status])
 
 
-def write_pairs_bag(pairs, bag_dir, namespace='/stereo', fps=8.7, overwrite=False):
+def write_pairs_bag(pairs, bag_dir, namespace='/stereo', fps=8.7, overwrite=False,
+                    right_offset_s=0.0):
     """
     Write raw pairs (uint16) as a rosbag2 of ``<namespace>/{left,right}/image_raw`` only.
 
     What a user records while moving a calibration target in front of the rig (no camera_info:
-    the rig is not calibrated yet). MCAP, metadata version 9; stamps ``1 / fps`` apart.
+    the rig is not calibrated yet). MCAP, metadata version 9; stamps ``1 / fps`` apart, the
+    right images' ``right_offset_s`` later (a recorder stamping each camera apart).
     """
     bag_dir = pathlib.Path(bag_dir)
     if bag_dir.exists():
@@ -176,8 +178,9 @@ def write_pairs_bag(pairs, bag_dir, namespace='/stereo', fps=8.7, overwrite=Fals
                     for side in ('left', 'right')]
         for index, pair in enumerate(pairs):
             stamp_ns = START_NS + int(round(index / fps * 1e9))
-            for connection, image, pixels in zip(connections, builders, pair):
-                msg = image(pixels, stamp_ns)
+            for connection, image, pixels, offset in zip(connections, builders, pair,
+                                                         (0.0, right_offset_s)):
+                msg = image(pixels, stamp_ns + int(round(offset * 1e9)))
                 writer.write(connection, stamp_ns, typestore.serialize_cdr(msg, msg.__msgtype__))
     return bag_dir
 

@@ -50,8 +50,8 @@ def pairs_from_directory(directory):
         yield str(a), read_thermal_image(a), read_thermal_image(b)
 
 
-def pairs_from_bag(path):
-    """Pairs of a rosbag2's raw image topics with identical stamps (others are counted)."""
+def bag_frames(path):
+    """Every raw left and right image of a rosbag2: ``{side: {stamp_ns: pixels}}``."""
     frames = {'left': {}, 'right': {}}
     try:
         for side, stamp, msg in raw_image_messages(path):
@@ -63,7 +63,18 @@ def pairs_from_bag(path):
             frames[side][stamp] = pixels[:, :msg.width].copy()
     except FileNotFoundError as error:
         raise CalibrationInputError(str(error)) from None
-    for stamp in sorted(set(frames['left']) & set(frames['right'])):
+    return frames
+
+
+def pairs_from_bag(path):
+    """Pairs of a rosbag2's raw image topics with identical stamps (none: an error says why)."""
+    frames = bag_frames(path)
+    stamps = sorted(set(frames['left']) & set(frames['right']))
+    if not stamps and frames['left'] and frames['right']:
+        raise CalibrationInputError(
+            f'{path}: {len(frames["left"])} left and {len(frames["right"])} right images but '
+            'no two with the same stamp (the driver stamps both images of a pair alike)')
+    for stamp in stamps:
         yield f'{pathlib.Path(path).name}@{stamp}', frames['left'][stamp], frames['right'][stamp]
 
 

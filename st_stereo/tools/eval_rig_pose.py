@@ -20,9 +20,10 @@ import json
 import numpy as np
 
 from st_stereo.core.calibration.targets import CalibrationTarget
+from st_stereo.core.floor_pose import wrapped_deg
 from st_stereo.core.rig_pose import RigPose
 from st_stereo.tools.rig_pose import chosen_views, estimate, FloorTargetViews, \
-    RigPoseInputError, stereo_rms
+    RigPoseInputError, stereo_rms, stereo_scale
 
 HEIGHT_TOLERANCE_M = 0.02
 ANGLE_TOLERANCE_DEG = 0.5
@@ -117,7 +118,8 @@ def run_case(case, calibrations, pairs, seed=0):
                 'roll_deg': pose.roll_deg, 'spread': floor.spread,
                 'height_error_m': pose.height_m - truth.height_m,
                 'tilt_error_deg': pose.tilt_deg - truth.tilt_deg,
-                'roll_error_deg': pose.roll_deg - truth.roll_deg})
+                'roll_error_deg': float(wrapped_deg(pose.roll_deg - truth.roll_deg)),
+                'scale': stereo_scale(chosen_views(views))})
             entry['met'] = bool(abs(entry['height_error_m']) <= HEIGHT_TOLERANCE_M and
                                 abs(entry['tilt_error_deg']) <= ANGLE_TOLERANCE_DEG and
                                 abs(entry['roll_error_deg']) <= ANGLE_TOLERANCE_DEG)
@@ -143,8 +145,8 @@ def fitted_calibration(pairs=200, seed=0, progress=None):
 def table(rows):
     """Markdown table of the cases' results."""
     lines = ['| case | calibration | pairs seen (both / left / right / neither) | height m '
-             '(error mm) | tilt deg (error) | roll deg (error) | reprojection rms px | within '
-             '2 cm, 0.5 deg |', '|---|---|---|---|---|---|---|---|']
+             '(error mm) | tilt deg (error) | roll deg (error) | reprojection rms px | target '
+             'size by the baseline | within 2 cm, 0.5 deg |', '|---' * 9 + '|']
     for row in rows:
         for name, entry in row['results'].items():
             seen = entry['seen']
@@ -152,14 +154,15 @@ def table(rows):
                       f"{seen['neither']}")
             rms = '-' if entry['stereo_rms_px'] is None else f"{entry['stereo_rms_px']:.3f}"
             met = 'yes' if entry['met'] else '**no**'
+            scale = '-' if entry.get('scale') is None else f"{entry['scale']:.4f}"
             if 'height_m' in entry:
                 lines.append(
                     f"| {row['case']} | {name} | {counts} | {entry['height_m']:.4f} "
                     f"({entry['height_error_m'] * 1000:+.1f}) | {entry['tilt_deg']:.3f} "
                     f"({entry['tilt_error_deg']:+.3f}) | {entry['roll_deg']:.3f} "
-                    f"({entry['roll_error_deg']:+.3f}) | {rms} | {met} |")
+                    f"({entry['roll_error_deg']:+.3f}) | {rms} | {scale} | {met} |")
             else:
-                lines.append(f"| {row['case']} | {name} | {counts} | - | - | - | - | **no**: "
+                lines.append(f"| {row['case']} | {name} | {counts} | - | - | - | - | - | **no**: "
                              f"{entry['why']} |")
     return '\n'.join(lines)
 

@@ -10,25 +10,32 @@ the people node read. The position in the room and the yaw are copied from ``--b
 floor does not give them).
 """
 
+import bisect
 import dataclasses
 import pathlib
 
+import cv2
 import numpy as np
 
 from st_stereo.core.calibration.files import CalibrationError, check_stereo_pair, \
     load_calibration
 from st_stereo.core.calibration.targets import CalibrationTarget, find_target, \
     MIN_SPACING_PX, REJECTIONS
-from st_stereo.core.floor_pose import combine_views, floor_view, FloorPoseError, \
-    MIN_TILT_FOR_ROLL_DEG
+from st_stereo.core.floor_pose import check_distortion_model, combine_views, floor_view, \
+    FloorPoseError, MIN_TILT_FOR_ROLL_DEG
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_yaml, RigPose
-from st_stereo.tools.calibrate import pairs_from_bag, pairs_from_captures, pairs_from_directory
+from st_stereo.tools.calibrate import bag_frames, pairs_from_captures, pairs_from_directory
 
 
-# A stereo view's points reproject this far off (median over the views, pixels) when the
-# target's size and the baseline disagree: on the simulator 0.03 px with the right spacing,
-# 0.21 px with a spacing 4 % off (a height 2.9 cm off), 1.1 px with 20 % off.
-MAX_STEREO_RMS_PX = 0.15
+# The target's size as the baseline measures it may differ from its description by this
+# fraction (median over the views): on the simulator 0.1-0.3 % with the right spacing (true
+# or fitted calibration); a spacing 2 % off showed as 1.9 % and a height 1.6 cm off, 3 % as
+# 2.9 % and 2.5 cm.
+MAX_SCALE_ERROR = 0.015
+# Beyond this reprojection error (median over the views, pixels) the points do not fit one
+# planar target seen by both cameras: 0.02-0.04 px on the simulator, 0.17 px with detection
+# noise of 0.12 px per axis.
+MAX_STEREO_RMS_PX = 0.5
 
 
 class RigPoseInputError(ValueError):
@@ -49,6 +56,7 @@ class FloorTargetViews:
                                                             'right only': 0, 'neither': 0})
     rejected: dict = dataclasses.field(default_factory=lambda: {
         side: dict.fromkeys(REJECTIONS, 0) for side in ('left', 'right')})
+    pose_failures: list = dataclasses.field(default_factory=list)   # (pair, reason)
 
     def add(self, name, left_image, right_image):
         """Find the target in one raw pair and keep the floor it gives."""
@@ -69,8 +77,11 @@ class FloorTargetViews:
                (False, False): 'neither'}[(found[0] is not None, found[1] is not None)]
         self.seen[key] += 1
         if key != 'neither':
-            self.views.append(floor_view(name, self.target, found[0], found[1],
-                                         self.left, self.right, self.thickness_m))
+            try:
+                self.views.append(floor_view(name, self.target, found[0], found[1],
+                                             self.left, self.right, self.thickness_m))
+            except (FloorPoseError, cv2.error) as error:
+                self.pose_failures.append((name, str(error).strip().splitlines()[-1]))
 
     def why_none(self):
         """Explain why no pair gave a view (the most frequent rejection, with a hint)."""
@@ -87,6 +98,31 @@ class FloorTargetViews:
         return f'{reason} in {counts[reason]} images: {hints[reason]}'
 
 
+def nearest_stamp_pairs(path, max_delta_s, counts):
+    """
+    Pairs of a rosbag2's raw images: each left image with the nearest right one in time.
+
+    The scene is static, so the two free-running cameras' images need not share a stamp
+    (other recorders stamp each camera apart); a left image without a right one within
+    ``max_delta_s`` is counted in ``counts['unpaired_left']``, right images never used in
+    ``counts['unused_right']``.
+    """
+    frames = bag_frames(path)
+    rights = sorted(frames['right'])
+    used = set()
+    for stamp in sorted(frames['left']):
+        index = bisect.bisect_left(rights, stamp)
+        near = [rights[i] for i in (index - 1, index) if 0 <= i < len(rights)]
+        best = min(near, key=lambda r: abs(r - stamp)) if near else None
+        if best is None or abs(best - stamp) > max_delta_s * 1e9:
+            counts['unpaired_left'] += 1
+            continue
+        used.add(best)
+        yield f'{pathlib.Path(path).name}@{stamp}', frames['left'][stamp], frames['right'][best]
+    counts['unused_right'] = len(rights) - len(used)
+    counts['images'] = (len(frames['left']), len(rights))
+
+
 def pose_yaml(pose, floor, base_source):
     """Return the rig pose YAML: ``config/rig_pose.yaml``'s fields, with their sources."""
     def span(field, unit):
@@ -96,8 +132,8 @@ def pose_yaml(pose, floor, base_source):
               f'# st-stereo rig-pose from {floor.views} views of a target on the floor; world '
               'and', f'# rig frames, position and yaw from {base_source}.']
     if not floor.roll_determined:
-        header.append(f'# Looking straight down (tilt < {MIN_TILT_FOR_ROLL_DEG} deg) the roll '
-                      'is the yaw: set yaw_deg to turn the image.')
+        header.append(f'# Nearly straight down (tilt < {MIN_TILT_FOR_ROLL_DEG} deg) the roll is '
+                      'poorly determined (straight down it is the yaw).')
     return rig_pose_yaml(pose, header, {'height_m': span('height_m', 'm'),
                                         'tilt_deg': span('tilt_deg', 'deg'),
                                         'roll_deg': span('roll_deg', 'deg')})
@@ -110,38 +146,56 @@ def chosen_views(views):
     With both cameras the target's distance rests on the baseline as well as on its size; a
     one-camera view at 3-4 m measured 5 cm and 1 deg off on the simulator (docs/people.md).
     """
-    stereo = [v for v in views.views if v.rms_left_px is not None and
-              v.rms_right_px is not None]
+    stereo = [v for v in views.views if v.stereo]
     return stereo or list(views.views)
 
 
 def stereo_rms(views):
     """Median over the views of both cameras of the larger reprojection rms (None: none)."""
-    rms = [max(v.rms_left_px, v.rms_right_px) for v in views
-           if v.rms_left_px is not None and v.rms_right_px is not None]
+    rms = [max(v.rms_left_px, v.rms_right_px) for v in views if v.stereo]
     return float(np.median(rms)) if rms else None
 
 
-def estimate(views, base, max_stereo_rms_px=MAX_STEREO_RMS_PX):
+def stereo_scale(views):
+    """Median over the views of both cameras of the target's measured / described size."""
+    scales = [v.scale for v in views if v.stereo]
+    return float(np.median(scales)) if scales else None
+
+
+def estimate(views, base, max_stereo_rms_px=MAX_STEREO_RMS_PX, max_scale_error=MAX_SCALE_ERROR,
+             allow_one_camera=False):
     """
     Return ``(RigPose, FloorPose)``: ``base`` with the fitted height, tilt and roll.
 
-    Refused (RigPoseInputError) when the views of both cameras reproject more than
-    ``max_stereo_rms_px`` off: the target's size and the calibration's baseline disagree.
+    Refused (RigPoseInputError): views of both cameras that reproject more than
+    ``max_stereo_rms_px`` off, or in which the baseline measures the target more than
+    ``max_scale_error`` larger or smaller than described (a wrong ``--spacing``, or a
+    calibration of another rig); views of one camera only unless ``allow_one_camera``.
     """
     chosen = chosen_views(views)
-    rms = stereo_rms(chosen)
+    rms, scale = stereo_rms(chosen), stereo_scale(chosen)
     if rms is not None and rms > max_stereo_rms_px:
         raise RigPoseInputError(
             f'the target reprojects {rms:.2f} px off in the two cameras (limit '
-            f'{max_stereo_rms_px} px): its size (spacing {views.target.spacing_m} m) and the '
-            "calibration's baseline disagree, or the calibration is not this rig's (on the "
-            'simulator a spacing 4 % off gave 0.21 px and a height 2.9 cm off)')
+            f'{max_stereo_rms_px} px): its points do not fit one planar grid seen by both '
+            'cameras (a wrong --target, --rows or --cols, or a calibration not of this rig)')
+    if scale is not None and abs(scale - 1.0) > max_scale_error:
+        raise RigPoseInputError(
+            f"the cameras' baseline measures the target {abs(scale - 1.0) * 100:.1f} % "
+            f'{"larger" if scale > 1 else "smaller"} than --spacing {views.target.spacing_m} m '
+            f'says (limit {max_scale_error * 100:g} %): check the spacing (about '
+            f'{views.target.spacing_m * scale:.4f} m by the cameras) and that the calibration '
+            "is this rig's; the height would be about that fraction off")
+    if rms is None and not allow_one_camera:
+        raise RigPoseInputError(
+            'no pair showed the whole target to both cameras: with one camera the height '
+            "rests on the target's size alone (on the simulator 5 cm and 1 deg off); place it "
+            'where both cameras see all of it, or pass --allow-one-camera')
     floor = combine_views(chosen)
-    roll = floor.roll_deg if floor.roll_determined else 0.0
     # Rounded far below the accuracy (millimetres, hundredths of a degree): a readable file.
     return dataclasses.replace(base, height_m=round(floor.height_m, 4),
-                               tilt_deg=round(floor.tilt_deg, 3), roll_deg=round(roll, 3)), floor
+                               tilt_deg=round(floor.tilt_deg, 3),
+                               roll_deg=round(floor.roll_deg, 3)), floor
 
 
 def report_text(views, pose, floor):
@@ -159,6 +213,11 @@ def report_text(views, pose, floor):
         if rms[side]:
             lines.append(f'{side} reprojection rms (px): median {np.median(rms[side]):.3f}, max '
                          f'{max(rms[side]):.3f}')
+    for name, reason in views.pose_failures:
+        lines.append(f'{name}: no pose: {reason}')
+    scale = stereo_scale(chosen_views(views))
+    if scale is not None:
+        lines.append(f"the target's size by the baseline / as described: {scale:.4f}")
     lines.append('| field | value | 5th-95th percentile over the views |')
     lines.append('|---|---:|---|')
     for field, unit in (('height_m', 'm'), ('tilt_deg', 'deg'), ('roll_deg', 'deg')):
@@ -170,10 +229,10 @@ def report_text(views, pose, floor):
     elif not views.seen['both']:
         lines.append('warning: no pair showed the target to both cameras: the height rests on '
                      "the target's size alone (on the simulator such views were up to 5 cm and "
-                     '1 deg off): place the target where both cameras see all of it')
+                     '1 deg off)')
     if not floor.roll_determined:
-        lines.append(f'tilt below {MIN_TILT_FOR_ROLL_DEG} deg: the roll is not determined (it is '
-                     'the yaw when looking straight down); written as 0')
+        lines.append(f'tilt below {MIN_TILT_FOR_ROLL_DEG} deg: the roll is poorly determined '
+                     '(looking straight down it is the yaw); the measured value is written')
     return '\n'.join(lines)
 
 
@@ -191,7 +250,9 @@ def calibrations(args):
     try:
         left, right = (load_calibration(path) for path in paths)
         check_stereo_pair(left, right, str(paths[0]), str(paths[1]))
-    except (CalibrationError, OSError) as error:
+        for calibration, path in zip((left, right), paths):
+            check_distortion_model(calibration, str(path))
+    except (CalibrationError, FloorPoseError, OSError) as error:
         raise RigPoseInputError(str(error)) from None
     return left, right
 
@@ -204,6 +265,10 @@ def main(args):
     if len(sources) != 1:
         raise RigPoseInputError('give exactly one input: --images DIR, --bag BAG or '
                                 '--capture LEFT RIGHT')
+    for name, value in (('--max-rms', args.max_rms), ('--max-scale-error', args.max_scale_error),
+                        ('--max-pair-delta', args.max_pair_delta)):
+        if not value > 0:
+            raise RigPoseInputError(f'{name}: expected a positive number, got {value}')
     if not args.thickness >= 0:
         raise RigPoseInputError(f'--thickness: expected the target surface height above the '
                                 f'floor (>= 0 m), got {args.thickness}')
@@ -213,7 +278,8 @@ def main(args):
     if args.images:
         pairs = pairs_from_directory(args.images)
     elif args.bag:
-        pairs = pairs_from_bag(args.bag)
+        bag_counts = {'unpaired_left': 0, 'unused_right': 0, 'images': (0, 0)}
+        pairs = nearest_stamp_pairs(args.bag, args.max_pair_delta, bag_counts)
     else:
         pairs = pairs_from_captures(*args.capture)
     views = FloorTargetViews(target, left, right, args.thickness)
@@ -221,13 +287,23 @@ def main(args):
         for name, left_image, right_image in pairs:
             views.add(name, left_image, right_image)
             bar.update(1)
+    if args.bag:
+        left_count, right_count = bag_counts['images']
+        if bag_counts['unpaired_left'] or bag_counts['unused_right']:
+            print(f'{args.bag}: {left_count} left and {right_count} right images; '
+                  f'{bag_counts["unpaired_left"]} left images had no right one within '
+                  f'{args.max_pair_delta} s, {bag_counts["unused_right"]} right images were '
+                  'not used')
     if views.pairs == 0:
-        raise RigPoseInputError('no pairs in the input')
+        raise RigPoseInputError('no pairs in the input' + (
+            f' ({left_count} left and {right_count} right images, none within '
+            f'{args.max_pair_delta} s of each other)' if args.bag else ''))
     if not views.views:
         raise RigPoseInputError(f'the target was not found in any of {views.pairs} pairs: '
                                 f'{views.why_none()}')
     try:
-        pose, floor = estimate(views, base, args.max_rms)
+        pose, floor = estimate(views, base, args.max_rms, args.max_scale_error,
+                               args.allow_one_camera)
     except FloorPoseError as error:
         raise RigPoseInputError(str(error)) from None
     print(report_text(views, pose, floor))
@@ -267,6 +343,15 @@ def add_parser(sub):
     p.add_argument('--max-rms', type=float, default=MAX_STEREO_RMS_PX,
                    help='refuse when the views of both cameras reproject farther off than '
                    f'this, pixels (default {MAX_STEREO_RMS_PX})')
+    p.add_argument('--max-scale-error', type=float, default=MAX_SCALE_ERROR,
+                   help="refuse when the baseline measures the target's size this fraction "
+                   f'away from --spacing (default {MAX_SCALE_ERROR})')
+    p.add_argument('--allow-one-camera', action='store_true',
+                   help='use views of one camera when no pair shows the target to both '
+                   '(the height then rests on the target size alone: cm, not mm)')
+    p.add_argument('--max-pair-delta', type=float, default=0.06,
+                   help='--bag: pair each left image with the nearest right one within this '
+                   'many seconds (default 0.06; the scene is static)')
     p.add_argument('--out', required=True, help='rig pose YAML to write')
     p.add_argument('--quiet', action='store_true', help='no progress bar')
     p.set_defaults(handler=main)
