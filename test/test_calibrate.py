@@ -19,16 +19,17 @@ from sensor_msgs.msg import Image
 from st_stereo.cli import main
 from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
-                                                detect_target, find_target)
+                                                detect_target, find_target, stereo_numbering)
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes.conversions import msg_to_image
 from st_stereo.nodes.driver_node import DriverNode
 from st_stereo.nodes.rectifier_node import RectifierNode
 from st_stereo.sim.recording import write_pairs_bag
 from st_stereo.sim.render import render_temperature
-from st_stereo.sim.rig import realistic_rig
+from st_stereo.sim.rig import realistic_rig, rotation_xyz
 from st_stereo.sim.sensor import LeptonSensor, SensorModel
-from st_stereo.sim.targets import calibration_scene, render_calibration_pairs, target_poses
+from st_stereo.sim.targets import calibration_scene, PatternMaterial, render_calibration_pairs, \
+    target_poses
 from st_stereo.tools.calibrate import calibrate, Collector
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -83,6 +84,41 @@ def _render_one(rig, target, pose):
     sensor = LeptonSensor(SensorModel(seed=3, ffc_period_s=0.0), (rig.height, rig.width))
     return sensor.frame(render_temperature(calibration_scene(target, pose), rig.cameras()[0], 3),
                         0.0)
+
+
+@pytest.mark.parametrize('flip', ['rows', 'columns', 'half turn'])
+def test_the_right_cameras_grid_is_numbered_as_the_left_one(flip):
+    left = CIRCLES.object_points()[:, :2].astype(np.float64) * 300.0 + [10.0, 8.0]
+    left = left @ np.array([[0.8, 0.6], [-0.6, 0.8]]).T      # turned 37 degrees in the image
+    grid = (left + [-6.0, 0.3]).reshape(CIRCLES.rows, CIRCLES.cols, 2)
+    grid = {'rows': grid[::-1], 'columns': grid[:, ::-1], 'half turn': grid[::-1, ::-1]}[flip]
+    np.testing.assert_allclose(stereo_numbering(CIRCLES, left, grid.reshape(-1, 2)),
+                               left + [-6.0, 0.3])
+
+
+def test_a_chessboard_turned_far_in_its_plane_is_numbered_alike_in_both_images():
+    # Rendered: turned 105 degrees, the right image's detector numbered it from another
+    # corner; a stereo view so numbered would pull stereoCalibrate's R and T off.
+    rig = realistic_rig()
+    cameras = rig.cameras()
+    x0, y0, x1, y1 = PatternMaterial(CHESSBOARD).extent()
+    rotation = cameras[0].rotation.T @ rotation_xyz(105, 0, 0) @ rotation_xyz(0, 20, 0)
+    origin = cameras[0].centre + cameras[0].rotation[2] * 1.6 - \
+        rotation @ [(x0 + x1) / 2, (y0 + y1) / 2, 0.0]
+    scene = calibration_scene(CHESSBOARD, (origin, rotation))
+    frames = [LeptonSensor(SensorModel(seed=seed, ffc_period_s=0.0), (60, 80)).frame(
+        render_temperature(scene, camera, 4), 0.0, True)
+        for seed, camera in zip((1, 2), cameras)]
+    left, right = Collector(CHESSBOARD).add('turned', *frames)
+    world = origin + CHESSBOARD.object_points().astype(np.float64) @ rotation.T
+    numbering = []
+    for camera, detection in zip(cameras, (left, right)):
+        true = camera.project(world)
+        nearest = np.linalg.norm(detection.points[:, None] - true[None], axis=2).argmin(axis=1)
+        np.testing.assert_allclose(detection.points, true[nearest], atol=0.3)
+        numbering.append(nearest)
+    # Either corner may come first (the grid is symmetric), but the same in both images.
+    np.testing.assert_array_equal(numbering[0], numbering[1])
 
 
 def test_rejected_images_say_why():

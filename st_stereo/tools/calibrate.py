@@ -9,6 +9,7 @@ target is described on the command line. Detection, calibration and the distorti
 explained in ``st_stereo.core.calibration.targets`` and ``st_stereo.core.calibration.stereo``.
 """
 
+import dataclasses
 import json
 import pathlib
 
@@ -19,7 +20,8 @@ from st_stereo.bag_streams import raw_image_messages
 from st_stereo.core.calibration.files import save_calibration
 from st_stereo.core.calibration.stereo import calibrate_stereo, coverage, OUTLIER_VIEW_FACTOR
 from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
-                                                find_target, REJECTIONS, to_u8)
+                                                find_target, REJECTIONS, stereo_numbering,
+                                                to_u8)
 from st_stereo.core.image_io import read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
 
@@ -125,6 +127,8 @@ class Collector:
                 self.rejected[side][reason] += 1
             found.append(detection)
         if found[0] and found[1]:
+            found[1] = dataclasses.replace(found[1], points=stereo_numbering(
+                self.target, found[0].points, found[1].points))
             self.counts['both'] += 1
             self.names.append(name)
             self.left.append(found[0].points)

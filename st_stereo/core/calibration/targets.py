@@ -233,6 +233,41 @@ def rough_points(upsampled_u8, target):
     return from_upsampled(points.reshape(-1, 2)) if ok else None
 
 
+def grid_numberings(target, points):
+    """
+    Return the numberings of a found grid that fit the target as well as the found one.
+
+    The found order, rows reversed, columns reversed and both, kept when the reordered points
+    still fit the target's plane through a homography (all four for symmetric grids and
+    chessboards; an asymmetric grid may allow fewer).
+    """
+    grid = np.asarray(points, dtype=np.float64).reshape(target.rows, target.cols, 2)
+    limit = 2.0 * homography_rms(target, grid.reshape(-1, 2)) + 1e-6
+    orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
+    return [order.reshape(-1, 2) for order in orders
+            if homography_rms(target, order.reshape(-1, 2)) <= limit]
+
+
+def stereo_numbering(target, left_points, right_points):
+    """
+    Return the right camera's points numbered as the left camera numbered them.
+
+    Each image's detector decides apart which corner comes first and which way the rows run:
+    a target turned far in its plane can come out numbered from another corner, or with its
+    rows reversed, in one image (seen with a chessboard turned 105 degrees and a circle grid
+    turned 45 degrees). The two cameras look at it from nearly the same place, so the right
+    numbering is the one whose points the left ones map to with an affine map nearest the
+    identity (a shift, a slight stretch), not a reflection or a half turn.
+    """
+    left = np.asarray(left_points, dtype=np.float64)
+    design = np.column_stack([left, np.ones(len(left))])
+
+    def distance_from_a_shift(order):
+        affine = np.linalg.lstsq(design, order, rcond=None)[0][:2].T
+        return float(np.linalg.norm(affine - np.eye(2)))
+    return min(grid_numberings(target, right_points), key=distance_from_a_shift)
+
+
 def detect_target(image, target, max_homography_rms=0.5):
     """Return the target's Detection in one raw image, or None (``find_target`` says why)."""
     return find_target(image, target, max_homography_rms)[0]
