@@ -313,6 +313,7 @@ def command_eval_points(args):
 def command_eval_people(args):
     """People on the floor (detection, tracking) against the simulator's truth."""
     from st_stereo.core.people import people_config_from_assignments
+    from st_stereo.core.rig_pose import load_rig_pose
     from st_stereo.package_data import bundled_recording
     from st_stereo.tools import eval_people
     sequences = eval_people.TUNING_SEQUENCES + eval_people.HELD_OUT_SEQUENCES \
@@ -323,7 +324,8 @@ def command_eval_people(args):
         people_config=people_config_from_assignments(args.people),
         recording=None if args.no_recording else bundled_recording(),
         max_pairs=args.max_frames,
-        log=None if args.quiet else lambda line: print(line, file=sys.stderr))
+        log=None if args.quiet else lambda line: print(line, file=sys.stderr),
+        rig_pose=load_rig_pose(args.rig_pose) if args.rig_pose else None)
     print(eval_people.markdown_table(report))
     print()
     print(eval_people.markdown_timing(report))
@@ -448,6 +450,8 @@ def build_parser():
                    help='comma-separated (default: the tuning and the held-out sequences)')
     e.add_argument('--max-frames', type=int, default=None, help='pairs per sequence (cap)')
     e.add_argument('--no-recording', action='store_true', help='skip the bundled recording')
+    e.add_argument('--rig-pose', help='rig pose YAML for every sequence instead of the truth '
+                   '(e.g. what st-stereo rig-pose fitted for the simulated rig)')
     e.add_argument('--plot', help='floor plans of the true and estimated tracks (PNG)')
     e.add_argument('--people', action='append', metavar='NAME=VALUE', default=[],
                    help='set a people parameter (repeatable; the people node parameters, README)')

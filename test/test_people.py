@@ -572,3 +572,18 @@ def test_a_far_person_cut_by_the_top_edge_is_found_in_rendered_frames_from_the_s
     without_legs = evaluate_sequence(spec, textures=textures, max_pairs=10,
                                      people_config=PeopleConfig(legs_min_fraction=0.0))
     assert without_legs.estimates == 0            # must walk min_travel_m first
+
+
+def test_eval_people_places_people_with_the_rig_pose_it_is_given():
+    import dataclasses
+
+    from st_stereo.sim.sequences import load_textures
+    from st_stereo.tools.eval_people import evaluate_sequence
+    # A rig pose turned 20 deg about the vertical (a wrong yaw) leaves the detections as they
+    # are but moves each one 0.35 x its horizontal range: none stays within 0.5 m of its truth.
+    spec, textures = standard_sequences()['two_people'], load_textures()
+    truth = evaluate_sequence(spec, textures=textures, max_pairs=6)
+    turned = dataclasses.replace(spec.rig.rig_pose(), yaw_deg=spec.rig.rig_pose().yaw_deg + 20)
+    wrong = evaluate_sequence(spec, textures=textures, max_pairs=6, rig_pose=turned)
+    assert truth.hits >= 8 and wrong.estimates == truth.estimates
+    assert wrong.hits == 0

@@ -177,14 +177,19 @@ class PeopleScoring:
         return people
 
 
-def evaluate_sequence(spec, config=None, people_config=None, textures=None, max_pairs=None):
-    """Run one simulated sequence through ST and the people stage; return the PeopleTally."""
+def evaluate_sequence(spec, config=None, people_config=None, textures=None, max_pairs=None,
+                      rig_pose=None):
+    """
+    Run one simulated sequence through ST and the people stage; return the PeopleTally.
+
+    ``rig_pose``: the RigPose the people stage uses (default: the rig's true one).
+    """
     from st_stereo.core.rectification import StereoRectifier
     from st_stereo.sim.sequences import SequenceRenderer
     renderer = SequenceRenderer(spec, textures=textures)
     calibrations = spec.rig.calibrations()
     scoring = PeopleScoring(StereoRectifier(*calibrations), calibrations[0],
-                            spec.rig.rig_pose(), config, people_config)
+                            rig_pose or spec.rig.rig_pose(), config, people_config)
     for index, (t_left, t_right) in enumerate(spec.pair_times()):
         if max_pairs and index >= max_pairs:
             break
@@ -194,7 +199,8 @@ def evaluate_sequence(spec, config=None, people_config=None, textures=None, max_
     return scoring.tally
 
 
-def evaluate_recording(recording, config=None, people_config=None, max_pairs=None):
+def evaluate_recording(recording, config=None, people_config=None, max_pairs=None,
+                       rig_pose=None):
     """
     Run a recording with ground truth (bag, left/right.yaml, rig_pose.yaml, npz) through.
 
@@ -212,7 +218,8 @@ def evaluate_recording(recording, config=None, people_config=None, max_pairs=Non
     truth = load_ground_truth(recording)
     left, right = (load_calibration(recording / f'{side}.yaml') for side in ('left', 'right'))
     scoring = PeopleScoring(StereoRectifier(left, right), left,
-                            load_rig_pose(recording / 'rig_pose.yaml'), config, people_config)
+                            rig_pose or load_rig_pose(recording / 'rig_pose.yaml'), config,
+                            people_config)
     stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
     for index, (stamp, left_raw, right_raw) in enumerate(recording_pairs(recording)):
         if max_pairs and index >= max_pairs:
@@ -228,18 +235,25 @@ def evaluate_recording(recording, config=None, people_config=None, max_pairs=Non
 
 
 def evaluate(sequences=TUNING_SEQUENCES + HELD_OUT_SEQUENCES, config=None, people_config=None,
-             recording=None, max_pairs=None, log=None):
-    """Score each named sequence (and the recording if given): ``({name: row}, tallies)``."""
+             recording=None, max_pairs=None, log=None, rig_pose=None):
+    """
+    Score each named sequence (and the recording if given): ``({name: row}, tallies)``.
+
+    ``rig_pose``: one RigPose for all of them instead of each one's truth (e.g. what
+    ``st-stereo rig-pose`` fitted for the simulated rig; every sequence and the bundled
+    recording use the same mount).
+    """
     from st_stereo.sim.sequences import load_textures, standard_sequences
     textures, specs = load_textures(), standard_sequences()
     tallies = {}
     for name in sequences:
         tallies[name] = evaluate_sequence(specs[name], config, people_config, textures,
-                                          max_pairs)
+                                          max_pairs, rig_pose)
         if log:
             log(f'{name}: {tallies[name].pairs} pairs')
     if recording is not None:
-        tallies['recording'] = evaluate_recording(recording, config, people_config, max_pairs)
+        tallies['recording'] = evaluate_recording(recording, config, people_config, max_pairs,
+                                                  rig_pose)
         if log:
             log(f'recording: {tallies["recording"].pairs} pairs')
     return {name: tally.row() for name, tally in tallies.items()}, tallies
