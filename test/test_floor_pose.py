@@ -195,7 +195,11 @@ def test_rig_pose_says_what_is_wrong(tmp_path, capsys):
           '--cols', '5', '--spacing', '0.25', '--thickness', '-1', '--out', fitted],
          '--thickness'),
         (['--calibration', str(out), *TARGET_ARGS, '--out', fitted], 'exactly one input'),
+        (['--images', str(out), '--calibration', str(out), *TARGET_ARGS, '--base',
+          str(out / 'turned.yaml'), '--out', fitted], 'tilt_deg -50.0 is negative'),
     ]
+    (out / 'turned.yaml').write_text(rig_pose_yaml(RigPose(yaw_deg=270.0, tilt_deg=-50.0,
+                                                           roll_deg=180.0)))
     for arguments, message in cases:
         assert main(['rig-pose', '--quiet', *arguments]) == 2
         assert message in capsys.readouterr().err

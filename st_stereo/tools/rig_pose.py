@@ -274,6 +274,13 @@ def main(args):
                                 f'floor (>= 0 m), got {args.thickness}')
     left, right = calibrations(args)
     base = load_rig_pose(args.base) if args.base else RigPose()
+    if base.tilt_deg < 0:
+        # The fit gives tilt >= 0 with the yaw along the direction the camera looks; a base
+        # written with a negative tilt has its yaw the other way round.
+        raise RigPoseInputError(
+            f'{args.base}: tilt_deg {base.tilt_deg} is negative: rig-pose writes the tilt as '
+            '>= 0 with yaw_deg the heading the camera looks towards; give the base that way '
+            f'(yaw_deg {(base.yaw_deg + 180.0) % 360.0:g} and a positive tilt)')
     base_source = args.base or 'the defaults (x 0, y 0, yaw 0)'
     if args.images:
         pairs = pairs_from_directory(args.images)
