@@ -49,8 +49,8 @@ def record_raw_pair(bag, seconds, compression_mode='none'):
 
 
 def replay(bag, rate=0.5):
-    clouds, published, _ = replay_through_matcher(bag, rate)
-    return clouds, published
+    clouds, published, matcher = replay_through_matcher(bag, rate)
+    return clouds, published, {**matcher.counts, **matcher.skew.counts}
 
 
 @pytest.mark.timeout(300)
@@ -58,11 +58,15 @@ def test_record_then_replay_twice_gives_identical_matches(tmp_path):
     bag = tmp_path / 'raw_pair'
     recorder = record_raw_pair(bag, 4.0)
     assert min(recorder.counts.values()) >= 20, recorder.counts
-    first, published_first = replay(bag)
-    second, published_second = replay(bag)
+    first, published_first, counts_first = replay(bag)
+    second, published_second, counts_second = replay(bag)
     assert published_first == published_second == sum(recorder.counts.values())
     assert len(first) >= 15
-    assert first == second          # bit for bit, for every pair
+    # Bit for bit, for every pair. The counts say why not if not: a pair matched before its
+    # pair_info arrived (waited longer than pair_info_wait) is not skew-corrected, nor is
+    # the next one (a loaded machine once did that in CI).
+    differing = sorted(k for k in set(first) | set(second) if first.get(k) != second.get(k))
+    assert not differing, (differing, counts_first, counts_second)
 
 
 def write_external_bag(bag, texture, depth, pairs=20):
