@@ -19,7 +19,8 @@ from sensor_msgs.msg import Image
 from st_stereo.cli import main
 from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
-                                                detect_target, find_target, stereo_numbering)
+                                                detect_target, find_target, grid_numberings,
+                                                stereo_numbering)
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.nodes.conversions import msg_to_image
 from st_stereo.nodes.driver_node import DriverNode
@@ -94,6 +95,19 @@ def test_the_right_cameras_grid_is_numbered_as_the_left_one(flip):
     grid = {'rows': grid[::-1], 'columns': grid[:, ::-1], 'half turn': grid[::-1, ::-1]}[flip]
     np.testing.assert_allclose(stereo_numbering(CIRCLES, left, grid.reshape(-1, 2)),
                                left + [-6.0, 0.3])
+
+
+@pytest.mark.parametrize('target,flip', [(CalibrationTarget('acircles', 4, 7, 0.1), 'half turn'),
+                                         (CalibrationTarget('acircles', 5, 5, 0.1), 'rows')],
+                         ids=['acircles-4x7', 'acircles-5x5'])
+def test_an_asymmetric_grid_is_renumbered_only_by_its_own_symmetry(target, flip):
+    # An asymmetric grid allows fewer numberings: even rows the half turn, odd rows reversed.
+    left = target.object_points()[:, :2].astype(np.float64) * 300.0 + [10.0, 8.0]
+    grid = (left + [-6.0, 0.3]).reshape(target.rows, target.cols, 2)
+    grid = {'rows': grid[::-1], 'half turn': grid[::-1, ::-1]}[flip]
+    assert len(grid_numberings(target, grid.reshape(-1, 2))) == 2
+    np.testing.assert_allclose(stereo_numbering(target, left, grid.reshape(-1, 2)),
+                               left + [-6.0, 0.3], atol=1e-9)
 
 
 def test_a_chessboard_turned_far_in_its_plane_is_numbered_alike_in_both_images():

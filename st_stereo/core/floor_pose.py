@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from st_stereo.core.calibration.targets import grid_numberings
 from st_stereo.core.rig_pose import stereo_extrinsics
 
 # Below this tilt (degrees from straight down) the roll is poorly determined by the floor.
@@ -193,32 +194,19 @@ class FloorView:
         return self.rms_left_px is not None and self.rms_right_px is not None
 
 
-def grid_orders(points, rows, cols):
-    """
-    Return the four numberings of a found grid that its symmetry cannot tell apart.
-
-    As found, with its rows reversed, its columns reversed, and both: the detector decides in
-    each image apart which corner comes first and which way the rows run, so the two cameras
-    may number a grid turned on the floor differently (seen with a grid turned 45 degrees:
-    rows reversed in one image).
-    """
-    grid = np.asarray(points, dtype=np.float64).reshape(rows, cols, 2)
-    return [grid.reshape(-1, 2), grid[::-1].reshape(-1, 2), grid[:, ::-1].reshape(-1, 2),
-            grid[::-1, ::-1].reshape(-1, 2)]
-
-
 def floor_view(name, target, left_points, right_points, left, right, thickness_m=0.0):
     """
     Height, tilt and roll of the rig from one pair's detections of a floor target.
 
     ``target``: the CalibrationTarget. With both cameras, the right camera's points are taken
-    in each of the grid's four numberings (``grid_orders``) and the one that agrees with the
-    left camera's (the lowest reprojection error) is kept; the target's size as the baseline
+    in each numbering the grid's symmetry allows (``grid_numberings``: the two cameras may
+    number a grid turned on the floor from different corners) and the one that agrees with
+    the left camera's (the lowest reprojection error) is kept; the target's size as the baseline
     measures it is fitted too (``stereo_scale``).
     """
     objects = target.object_points()
     orders = [right_points] if left_points is None or right_points is None else \
-        grid_orders(right_points, target.rows, target.cols)
+        grid_numberings(target, right_points)
     fits = [(order, target_pose(objects, left_points, order, left, right)) for order in orders]
     right_points, (rotation, translation, (rms_left, rms_right)) = min(
         fits, key=lambda fit: max(r for r in fit[1][2] if r is not None))

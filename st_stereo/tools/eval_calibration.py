@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from st_stereo.core.calibration.targets import CalibrationTarget
+from st_stereo.core.calibration.targets import CalibrationTarget, grid_numberings
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
@@ -60,7 +60,11 @@ def render_and_calibrate(rig, target, pairs, seed=0, progress=None):
         world = origin + model @ rotation.T
         for detection, camera in zip(found, cameras):
             if detection is not None:
-                errors.append(np.linalg.norm(detection.points - camera.project(world), axis=1))
+                # Against the numbering of the truth the detection took (a symmetric grid
+                # may be numbered from any of its corners; calibration does not mind).
+                errors.append(np.linalg.norm(detection.points - min(
+                    grid_numberings(target, camera.project(world)),
+                    key=lambda truth: np.abs(truth - detection.points).sum()), axis=1))
         if progress:
             progress()
     detected = time.perf_counter()

@@ -257,7 +257,9 @@ def stereo_numbering(target, left_points, right_points):
     rows reversed, in one image (seen with a chessboard turned 105 degrees and a circle grid
     turned 45 degrees). The two cameras look at it from nearly the same place, so the right
     numbering is the one whose points the left ones map to with an affine map nearest the
-    identity (a shift, a slight stretch), not a reflection or a half turn.
+    identity (a shift, a slight stretch), not a reflection or a half turn. This assumes the
+    two raw images are not turned far against each other (a camera mounted upside down
+    would be read as a half turn).
     """
     left = np.asarray(left_points, dtype=np.float64)
     design = np.column_stack([left, np.ones(len(left))])
