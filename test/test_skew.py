@@ -27,6 +27,13 @@ def translating_camera(texture, velocity):
     return camera
 
 
+def matched_moving_pair(image, velocity, skew_s, config, disparity=DISPARITY):
+    """Return the camera, pair and ST result of a scene moving at ``velocity`` px/s."""
+    camera = translating_camera(thermal(image), velocity)
+    left, right = camera(0.0, 0.0, 2), camera(skew_s, disparity, 3)
+    return camera, left, right, StereoMatcher(config).match(left, right)
+
+
 def correct_after_previous_pair(result, camera, left, right, skew_s, disparity=DISPARITY,
                                 **options):
     """Correct the pair at t = 0 after the pair one period earlier; return it and the counts."""
@@ -366,10 +373,8 @@ def test_the_poc_velocity_corrects_a_sub_pixel_motion_without_the_ncc_bias(
     # (23.7 px/s is 2.72 px): the NCC's integer search and parabola leave about 0.02 px of
     # bias in the corrected disparities here; the POC measures the same window's disparity
     # against the bracketing camera's previous frame and interpolates it in time.
-    camera = translating_camera(thermal(people_80x60), velocity)
-    left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig(skew_velocity='poc')
-    result = StereoMatcher(config).match(left, right)
+    camera, left, right, result = matched_moving_pair(people_80x60, velocity, skew_s, config)
     inner = (result.x_left > 12) & (result.x_left < 68)     # away from the shifted-in border
 
     def corrected_errors(options):
@@ -397,10 +402,8 @@ def test_poc_velocity_measures_the_motion_and_refuses_a_track_it_does_not_confir
     # off; from a track 1.5 px per period off the POC (recentred within poc_max_shift) still
     # finds the true shift, 1.5 px from the track: beyond max_disagreement_px (1 px), refused.
     velocity, skew_s = 17.3, 0.04 if camera_side == 'right' else -0.04
-    camera = translating_camera(thermal(people_80x60), velocity)
-    left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig()
-    result = StereoMatcher(config).match(left, right)
+    camera, left, right, result = matched_moving_pair(people_80x60, velocity, skew_s, config)
     inner = (result.x_left > 14) & (result.x_left < 66)
     x, y, disparity = result.x_left[inner], result.y[inner], result.disparity[inner]
     if camera_side == 'right':
@@ -426,10 +429,9 @@ def test_a_negative_cross_time_disparity_is_not_clamped(people_80x60):
     # disparity (1 px, -45 px/s: d_prev = 1 - 5.2 px); clamped at 0 like a stereo disparity it
     # biased or dropped every feature. Skew +45 ms, the right camera's frames.
     disparity, velocity, skew_s = 1.0, -45.0, 0.045
-    camera = translating_camera(thermal(people_80x60), velocity)
-    left, right = camera(0.0, 0.0, 2), camera(skew_s, disparity, 3)
     config = STConfig(disparity_min=0, skew_velocity='poc')
-    result = StereoMatcher(config).match(left, right)
+    camera, left, right, result = matched_moving_pair(people_80x60, velocity, skew_s,
+                                                      config, disparity)
     corrected, counts = correct_after_previous_pair(result, camera, left, right, skew_s,
                                                     disparity, **compensation_options(config))
     inner = (corrected.x_left > 14) & (corrected.x_left < 62)
@@ -528,10 +530,8 @@ def test_with_poc_on_the_feature_images_the_poc_velocity_still_corrects(
     # velocity corrects better than one measured on M (0.015 against 0.022-0.027 px) and than
     # the NCC's (0.034-0.039 px); kept.
     velocity, skew_s = 23.7, 0.045 if camera_side == 'right' else -0.045
-    camera = translating_camera(thermal(people_80x60), velocity)
-    left, right = camera(0.0, 0.0, 2), camera(skew_s, DISPARITY, 3)
     config = STConfig(poc_source='moments')
-    result = StereoMatcher(config).match(left, right)
+    camera, left, right, result = matched_moving_pair(people_80x60, velocity, skew_s, config)
 
     def median_error(velocity_method):
         options = compensation_options(STConfig(poc_source='moments',

@@ -95,6 +95,24 @@ def pairs_from_captures(left_path, right_path, max_delta=0.05):
         yield f'capture@{pair.stamp:.3f}', pair.left.pixels, pair.right.pixels
 
 
+def input_pairs(args, bag_pairs=pairs_from_bag):
+    """
+    Return the pairs of the one input given: ``--images``, ``--bag`` or ``--capture``.
+
+    ``bag_pairs``: how a bag's images are paired (default: identical stamps). Pairs are read
+    as they are iterated.
+    """
+    sources = [s for s in (args.images, args.bag, args.capture) if s]
+    if len(sources) != 1:
+        raise CalibrationInputError('give exactly one input: --images DIR, --bag BAG or '
+                                    '--capture LEFT RIGHT')
+    if args.images:
+        return pairs_from_directory(args.images)
+    if args.bag:
+        return bag_pairs(args.bag)
+    return pairs_from_captures(*args.capture)
+
+
 class Collector:
     """Detections of every pair, with counts of what was rejected and why."""
 
@@ -270,16 +288,7 @@ def main(args):
     """Run ``st-stereo calibrate``."""
     from tqdm import tqdm
     target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
-    sources = [s for s in (args.images, args.bag, args.capture) if s]
-    if len(sources) != 1:
-        raise CalibrationInputError('give exactly one input: --images DIR, --bag BAG or '
-                                    '--capture LEFT RIGHT')
-    if args.images:
-        pairs = pairs_from_directory(args.images)
-    elif args.bag:
-        pairs = pairs_from_bag(args.bag)
-    else:
-        pairs = pairs_from_captures(*args.capture)
+    pairs = input_pairs(args)
     collector = Collector(target)
     with tqdm(desc='detecting', unit='pair', disable=args.quiet) as bar:
         for name, left, right in pairs:

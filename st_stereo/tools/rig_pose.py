@@ -24,7 +24,7 @@ from st_stereo.core.calibration.targets import CalibrationTarget, find_target, \
 from st_stereo.core.floor_pose import check_distortion_model, combine_views, floor_view, \
     FloorPoseError, MIN_TILT_FOR_ROLL_DEG
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_yaml, RigPose
-from st_stereo.tools.calibrate import bag_frames, pairs_from_captures, pairs_from_directory
+from st_stereo.tools.calibrate import bag_frames, input_pairs
 
 
 # The target's size as the baseline measures it may differ from its description by this
@@ -261,10 +261,9 @@ def main(args):
     """Run ``st-stereo rig-pose``."""
     from tqdm import tqdm
     target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
-    sources = [s for s in (args.images, args.bag, args.capture) if s]
-    if len(sources) != 1:
-        raise RigPoseInputError('give exactly one input: --images DIR, --bag BAG or '
-                                '--capture LEFT RIGHT')
+    bag_counts = {'unpaired_left': 0, 'unused_right': 0, 'images': (0, 0)}
+    pairs = input_pairs(args, lambda bag: nearest_stamp_pairs(bag, args.max_pair_delta,
+                                                              bag_counts))
     for name, value in (('--max-rms', args.max_rms), ('--max-scale-error', args.max_scale_error),
                         ('--max-pair-delta', args.max_pair_delta)):
         if not value > 0:
@@ -282,13 +281,6 @@ def main(args):
             '>= 0 with yaw_deg the heading the camera looks towards; give the base that way '
             f'(yaw_deg {(base.yaw_deg + 180.0) % 360.0:g} and a positive tilt)')
     base_source = args.base or 'the defaults (x 0, y 0, yaw 0)'
-    if args.images:
-        pairs = pairs_from_directory(args.images)
-    elif args.bag:
-        bag_counts = {'unpaired_left': 0, 'unused_right': 0, 'images': (0, 0)}
-        pairs = nearest_stamp_pairs(args.bag, args.max_pair_delta, bag_counts)
-    else:
-        pairs = pairs_from_captures(*args.capture)
     views = FloorTargetViews(target, left, right, args.thickness)
     with tqdm(desc='finding the target', unit='pair', disable=args.quiet) as bar:
         for name, left_image, right_image in pairs:
