@@ -8,6 +8,7 @@ writes against the transform the people stage builds from it.
 """
 
 import dataclasses
+import pathlib
 
 import cv2
 import numpy as np
@@ -302,3 +303,17 @@ def test_a_bag_stamping_each_camera_apart_is_paired_by_nearest_stamp(tmp_path, c
     assert main(arguments + ['--max-pair-delta', '0.01']) == 2
     assert 'no pairs in the input (4 left and 4 right images, none within 0.01 s' in \
         capsys.readouterr().err
+
+
+def test_a_bag_ros2_bag_record_wrote_without_images_is_named_with_its_topics(tmp_path, capsys):
+    # Written by `ros2 bag record` itself (../shared/data/rosbag2, MCAP, metadata v4): no
+    # camera topics, and the error lists the ones it has.
+    bag = pathlib.Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'rosbag2' / \
+        'talker_mcap_v4'
+    out = render_session(tmp_path, capsys)
+    assert main(['rig-pose', '--quiet', '--bag', str(bag), '--calibration', str(out),
+                 *TARGET_ARGS, '--out', str(tmp_path / 'pose.yaml')]) == 2
+    error = capsys.readouterr().err
+    assert 'expected topics ending in left/image_raw and right/image_raw' in error
+    assert "'/topic'" in error and "'/rosout'" in error
+    assert not (tmp_path / 'pose.yaml').exists()
