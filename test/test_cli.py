@@ -37,7 +37,7 @@ def test_match_writes_json_and_csv(pair_files, tmp_path, capsys):
     csv_out = tmp_path / 'matches.csv'
     assert main(['match', str(pair_files[0]), str(pair_files[1]), '--out', str(csv_out)]) == 0
     header = csv_out.read_text().splitlines()[0]
-    assert header == 'x_left,y,disparity,x_right,similarity,poc_peak,confidence'
+    assert header == 'x_left,y,disparity,x_right,similarity,poc_peak,confidence,x_point,y_point'
 
 
 def test_match_with_calibration_adds_points(pair_files, tmp_path):

@@ -120,6 +120,14 @@ class STConfig:
                                    '(docs/results.md: outliers against the share kept)',
                                    low=0.0, high=1.0)
 
+    point_location: str = _field(
+        'feature', "where a match's 3-D point is placed: feature (the feature's own pixel, the "
+        "window centre) or structure (the centroid of the POC window's squared Hann weight "
+        'times squared horizontal gradient, where the window found its disparity: fewer 3-D '
+        'outliers, but the people stage was tuned on feature points and loses a far person '
+        'with it, so not the default; st_stereo.core.point_location, docs/results.md); the '
+        'disparity is the same', choices=('feature', 'structure'))
+
     depth_edge_check: bool = _field(
         True, 'reject a match on the cool side of a strong intensity edge unless a POC window '
         'moved half a window plus 1 px into that side finds the same disparity: weakly '

@@ -19,6 +19,7 @@ from st_stereo.core.config import STConfig
 from st_stereo.core.depth_edges import (cool_side_features, edge_position, side_agrees,
                                         side_window_centres)
 from st_stereo.core.phase_congruency import feature_strength
+from st_stereo.core.point_location import structure_offsets
 from st_stereo.core.rough_matching import (enforce_uniqueness, REJECTION_KEYS, rough_match,
                                            RoughMatches)
 from st_stereo.core.subpixel import refine_subpixel_poc, SUBPIXEL_REJECTION_KEYS
@@ -82,7 +83,11 @@ class MatchResult:
     Attributes
     ----------
     x_left, y : ndarray, shape (n,)
-        Left pixel of each match (integer coordinates).
+        Left pixel of each match (integer coordinates): the feature, its windows' centre.
+    x_point, y_point : ndarray, shape (n,)
+        Sub-pixel left pixel the match's point is triangulated from (``point_location``:
+        where its window's horizontal structure lies, ``st_stereo.core.point_location``;
+        the feature's pixel with ``point_location: feature``).
     disparity : ndarray, shape (n,)
         Sub-pixel disparity ``x_left - x_right`` (>= 0), pixels.
     similarity : ndarray, shape (n,)
@@ -117,6 +122,15 @@ class MatchResult:
     feature_images: np.ndarray = None
     rough: RoughMatches = None
     confidence: np.ndarray = None
+    x_point: np.ndarray = None
+    y_point: np.ndarray = None
+
+    def __post_init__(self):
+        """Set the points' pixels to the features' own when not given."""
+        if self.x_point is None:
+            self.x_point = np.asarray(self.x_left, dtype=np.float64)
+        if self.y_point is None:
+            self.y_point = np.asarray(self.y, dtype=np.float64)
 
     def __len__(self):
         """Return the number of matches."""
@@ -136,7 +150,8 @@ class MatchResult:
                    'x_right': float(self.x_right[i]),
                    'similarity': float(self.similarity[i]),
                    'poc_peak': float(self.poc_peak[i]),
-                   'confidence': float(self.confidence[i])}
+                   'confidence': float(self.confidence[i]),
+                   'x_point': float(self.x_point[i]), 'y_point': float(self.y_point[i])}
             if self.points is not None:
                 row.update(zip(('X', 'Y', 'Z'), map(float, self.points[i])))
             rows.append(row)
@@ -151,7 +166,7 @@ class MatchResult:
     def to_csv(self):
         """Return the matches as CSV text with a header row."""
         fields = ['x_left', 'y', 'disparity', 'x_right', 'similarity', 'poc_peak',
-                  'confidence']
+                  'confidence', 'x_point', 'y_point']
         if self.points is not None:
             fields += ['X', 'Y', 'Z']
         buffer = io.StringIO()
@@ -303,16 +318,20 @@ class StereoMatcher:
         tick = time.perf_counter()
         x_left, y = rough.x_left[keep], rough.y[keep]
         disparity = refined.disparity[keep]
+        x_point, y_point = x_left.astype(np.float64), y.astype(np.float64)
+        if config.point_location == 'structure':
+            dx, dy = structure_offsets(poc_left, y, x_left, config.poc_window)
+            x_point, y_point = x_point + dx, y_point + dy
         points = None
         if self.model is not None:
-            points = triangulate(self.model, x_left, y, disparity)
+            points = triangulate(self.model, x_point, y_point, disparity)
         timings['triangulation'] = _elapsed_ms(tick)
         timings['total'] = _elapsed_ms(started)
         return MatchResult(x_left=x_left, y=y, disparity=disparity,
                            similarity=rough.similarity[keep], poc_peak=refined.peak_value[keep],
                            points=points, counts=counts, timings_ms=timings,
                            image_shape=left.shape, feature_images=moments, rough=rough,
-                           confidence=confidence[keep])
+                           confidence=confidence[keep], x_point=x_point, y_point=y_point)
 
 
 def depth_edge_rejects(left, right, y, x_left, disparity, candidates, config,

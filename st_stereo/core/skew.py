@@ -482,9 +482,9 @@ class SkewCompensator:
             inside = (disparity >= bounds[0]) & (disparity <= bounds[1])
             self.counts['rejected_skew_range'] += int((keep & ~inside).sum())
             keep &= inside
-        points = triangulate(model, result.x_left[keep], result.y[keep], disparity[keep]) \
-            if model is not None else None
+        points = triangulate(model, result.x_point[keep], result.y_point[keep],
+                             disparity[keep]) if model is not None else None
         fields = {name: getattr(result, name)[keep] for name in
-                  ('x_left', 'y', 'similarity', 'poc_peak', 'confidence')
+                  ('x_left', 'y', 'x_point', 'y_point', 'similarity', 'poc_peak', 'confidence')
                   if getattr(result, name) is not None}
         return dataclasses.replace(result, disparity=disparity[keep], points=points, **fields)

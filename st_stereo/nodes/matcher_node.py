@@ -93,6 +93,9 @@ class MatcherNode(Node):
         self._pair_times_lock = threading.Lock()
         self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
+        # Matches whose point rounds to the pixel of a more confident one: in points2, not in
+        # the DisparityImage (one value per pixel).
+        self.matches_sharing_disparity_pixel = 0
         self.processing_times = []
         self.last_pair_info_problem = ''
         # A pair whose pair_info has not arrived yet (another topic: an executor may deliver
@@ -268,12 +271,15 @@ class MatcherNode(Node):
                                                         result.confidence))
         config = matcher.config
         low, high = matcher.disparity_bounds()
-        self.disparity_pub.publish(conversions.disparity_image(
-            header, left.shape, result.x_left, result.y, result.disparity, model.fx,
+        disparity_msg, shared = conversions.disparity_image(
+            header, left.shape, result.x_point, result.y_point, result.disparity, model.fx,
             model.baseline, max(low, config.disparity_min), min(high, config.disparity_max),
             (config.poc_window // 2, config.poc_window // 2,
              left.shape[1] - 2 * (config.poc_window // 2),
-             left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset))
+             left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset,
+            rank=result.confidence)
+        self.disparity_pub.publish(disparity_msg)
+        self.matches_sharing_disparity_pixel += shared
         self.counts['matched'] += 1
         if not len(result):
             self.counts['empty_clouds'] += 1
@@ -293,6 +299,8 @@ class MatcherNode(Node):
     def _publish_diagnostics(self):
         level, summary, values = self.frequency.values(time.monotonic())
         values.update({f'pairs {k}': v for k, v in self.counts.items()})
+        values['matches in points2 only (disparity pixel shared with a more confident one)'] = \
+            self.matches_sharing_disparity_pixel
         values['kernels'] = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
         values['kernels start-up (s)'] = round(self.kernel_warm_up_s, 3)
         values['pairs dropped by sync (left, right, left info, right info)'] = \

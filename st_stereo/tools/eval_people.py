@@ -166,7 +166,7 @@ class PeopleScoring:
         left = self.rectifier.rectify(left_raw, left_raw)[0]
         start = time.perf_counter()
         model = self.rectifier.model
-        people = self.estimator.process(t_left, result.points, result.x_left, result.y,
+        people = self.estimator.process(t_left, result.points, result.x_point, result.y_point,
                                         result.disparity, result.confidence, left,
                                         intrinsics=(model.fx, model.fy, model.cx, model.cy))
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))

@@ -31,7 +31,7 @@ HELD_OUT_SEQUENCES = ('meeting_room',)
 
 def score_result(tally, model, truth, result):
     """Add one MatchResult's points to a tally."""
-    tally.add(score_points(model, truth, result.x_left, result.y, result.disparity,
+    tally.add(score_points(model, truth, result.x_point, result.y_point, result.disparity,
                            result.points))
 
 
@@ -95,8 +95,8 @@ def evaluate_sequence(spec, config=None, stride=2, textures=None, max_frames=Non
         result = matching.match(frame['left'], frame['right'], t_left, t_right - t_left)
         score_result(tally, rectifier.model, frame['truth'], result)
         speeds = renderer.head_image_velocity(t_left, rectifier.model.fx)
-        motion.add(*people_disparity_errors(rectifier.model, frame['truth'], result.x_left,
-                                            result.y, result.disparity, speeds),
+        motion.add(*people_disparity_errors(rectifier.model, frame['truth'], result.x_point,
+                                            result.y_point, result.disparity, speeds),
                    1e3 * (t_right - t_left))
     return tally, renderer.scene(0.0)[0].label_names, motion
 
@@ -146,8 +146,8 @@ def evaluate_recording(recording, config=None, stride=1, max_frames=None):
         one = frame_truth(truth, frame)
         score_result(tally, rectifier.model, one, result)
         if 'heads_image_velocity' in truth:
-            motion.add(*people_disparity_errors(rectifier.model, one, result.x_left, result.y,
-                                                result.disparity,
+            motion.add(*people_disparity_errors(rectifier.model, one, result.x_point,
+                                                result.y_point, result.disparity,
                                                 truth['heads_image_velocity'][frame]),
                        1e3 * skew)
     return tally, truth['label_names'], motion
@@ -265,14 +265,14 @@ def error_figure(path, times=(3.0,), config=None):
         break
     figure, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.8))
     for axis, (name, rectifier, left, result, truth) in zip(np.atleast_1d(axes), panels):
-        scores = score_points(rectifier.model, truth, result.x_left, result.y,
+        scores = score_points(rectifier.model, truth, result.x_point, result.y_point,
                               result.disparity, result.points)
         error = scores['distance_3d']
         colours = np.where(error[:, None] <= 0.1, [[0.1, 0.8, 0.1]],
                            np.where(error[:, None] <= 0.3, [[0.95, 0.85, 0.1]],
                                     [[0.9, 0.1, 0.1]]))
         axis.imshow(left, cmap='gray')
-        axis.scatter(result.x_left, result.y, s=4, c=colours, linewidths=0)
+        axis.scatter(result.x_point, result.y_point, s=4, c=colours, linewidths=0)
         axis.set_title(f'{name}: {np.mean(error > 0.3):.1%} > 0.3 m', fontsize=8)
         axis.axis('off')
     figure.tight_layout()
