@@ -85,7 +85,10 @@ def test_wall_points_carrying_the_box_disparity_are_placed_on_the_box_edge():
     feature, structure = (np.concatenate(away[k]) for k in ('feature', 'structure'))
     assert len(feature) == len(structure) > 50
     assert (feature > 1.0).sum() > 40
-    assert (structure > 1.0).sum() <= (feature > 1.0).sum() / 4
+    # Issue 12's criterion: no background point carries the box's disparity beyond one pixel
+    # of its edge (measured over 20 seeds: 355 such points at the features' pixels, 0 placed
+    # at the structure, with or without the depth-edge check).
+    assert (structure > 1.0).sum() == 0
 
 
 def test_the_disparity_image_keeps_the_most_confident_point_of_a_pixel():

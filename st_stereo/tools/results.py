@@ -256,6 +256,50 @@ meeting_room figures were seen while the check was designed, so that sequence is
 strictly held out for this mechanism. The check assumes the nearer object is the warmer one:
 in front of a warmer background it removes nothing (``st_stereo.core.depth_edges``).
 
+**Where the point is placed** (``point_location``, since 2026-12-06,
+``st_stereo.core.point_location``; the tables above use the default, ``feature``). A 9-pixel
+POC window spans a whole person at 80x60, and a feature one to four pixels off a strong edge
+carries the edge's disparity. With ``point_location: structure`` the point is triangulated at
+the centroid of the window's squared Hann weight times squared horizontal gradient (where, to
+first order, a windowed correlation measures its shift) instead of at the feature's pixel.
+Disparities, matches and the shifted-frame accuracy are unchanged; the points move by 0.62 px
+median (p90 1.67, max 3.1 px, every fifth pair of the recording); the centroids cost 1.0 ms
+per 80x60 pair of 556 matches (``structure_offsets`` timed alone, 2026-12-06; in `st-stereo
+bench` it is part of the triangulation stage). Measured with
+`st-stereo eval points --stride 4 [--set point_location=structure]` (2026-12-06; feature ->
+structure; the weighting chosen among five on synchronized pairs of the three tuning
+sequences, meeting_room run once after the choice):
+
+{point_location_table()}
+On the rendered warm box in front of a textured wall (``test/test_point_location.py``, 20
+noise seeds), 355 points at their features' pixels carry the box's disparity more than a
+pixel off the box (51 with the depth-edge check, which drops 518 matches for it); placed at
+their window's structure, none does, with or without the check.
+
+Points that were counted on the floor or a wall beside a person land on the person's outline,
+where their disparity belongs (people's point counts grow by 11-20 %). walk_across's people
+outliers grow because such points join the walker's own wrong ones: 15 of its 56 are the first
+pair's (no previous pair, so no skew correction: the walker's legs 2 px short); in the three
+other pairs traced (16, 32, 52) they are moving features whose skew correction was too small,
+too large, or, for the walker turning at the image's right edge, of the wrong sign (+1.9 px
+instead of -1.6 px; issue 14).
+
+**Why it is not the default.** The people stage (docs/people.md) was tuned on points at their
+features' pixels. `st-stereo eval people --set point_location=structure` (2026-12-06, against
+the same day's default run): sit_down recall 99.0 -> 85.6 % (the person walking in from 4.6 m
+with the head above the image is published 14 pairs later: the legs under a body cut by the
+top edge are two or three pixels wide there, and the floor position moving by 1-2 cm moves
+the legs' window off the warm pixels in one of the first pairs), horizontal error medians up
+by 6-55 mm on six of the seven (walk_across 0.131 -> 0.156 m: the lateral median error 0.043
+-> 0.061 m, the points on the outline shifting the median; sit_down's down, 0.074 -> 0.058
+m), open_office recall 63.2 -> 72.9 % but precision 95.5 -> 83.3 % and id switches 4 -> 5,
+crossing 2 id switches (none), meeting_room recall 62.4 -> 62.9 %, the recording 84.4 ->
+85.9 %. Moving only the points of features on the cool
+side of their window's structure (background beside a warm body) gave the same 3-D outliers on
+the tuning sequences (3.8 / 1.0 / 2.3 %) and walk_across's horizontal median 0.135 m, but the
+same sit_down recall (85.6 %); not kept. A consumer of ``points2`` that does not run the
+people stage gets the better points with ``point_location: structure``.
+
 Disparity error of the matches on people (what a moving person's points carry), by the pair's
 camera skew and the person's image speed; each sequence has its own camera phase, so its skew
 bin is its own:
@@ -288,6 +332,32 @@ people needs a correction for the body's curvature that is not built.
 Points coloured by their 3-D error over the left image (green within 0.1 m, yellow within
 0.3 m, red beyond), one frame of each sequence and of the recording.
 """
+
+
+# `st-stereo eval points --stride 4 [--set point_location=structure]`, 2026-12-06:
+# feature -> structure.
+POINT_LOCATION_COLUMNS = ('sequence', 'outliers 3-D, all', 'on people', 'strict',
+                          'disparity > 1 px', 'median abs dZ/Z', 'correct on people / frame')
+POINT_LOCATION_ROWS = (
+    ('walk_across', '4.3 -> 3.9 %', '3.0 -> 4.1 %', '12.3 -> 7.1 %', '10.0 -> 5.5 %',
+     '2.64 -> 2.43 %', '63.7 -> 72.1'),
+    ('two_people', '1.9 -> 0.9 %', '0.3 -> 0.4 %', '15.4 -> 9.3 %', '14.5 -> 8.7 %',
+     '2.28 -> 1.88 %', '151.6 -> 170.3'),
+    ('sit_down', '3.2 -> 2.3 %', '0.7 -> 0.8 %', '13.2 -> 6.7 %', '11.1 -> 5.1 %',
+     '2.32 -> 2.08 %', '79.2 -> 94.8'),
+    ('meeting_room (held out)', '3.0 -> 0.6 %', '0.2 -> 0.2 %', '14.1 -> 6.3 %',
+     '13.8 -> 6.1 %', '2.78 -> 2.46 %', '159.0 -> 177.0'),
+    ('recording', '2.2 -> 1.6 %', '0.6 -> 0.6 %', '13.0 -> 7.3 %', '11.6 -> 6.0 %',
+     '2.49 -> 2.19 %', '146.2 -> 167.9'),
+)
+
+
+def point_location_table():
+    """Return the measured feature -> structure table of ``point_location`` (Markdown)."""
+    lines = ['| ' + ' | '.join(POINT_LOCATION_COLUMNS) + ' |',
+             '|' + '---|' * len(POINT_LOCATION_COLUMNS)]
+    lines += ['| ' + ' | '.join(row) + ' |' for row in POINT_LOCATION_ROWS]
+    return chr(10).join(lines) + chr(10)
 
 
 POINTS_BEFORE = 'points_before.json'
