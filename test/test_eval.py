@@ -93,8 +93,9 @@ def test_calibration_check_judges_st_points_by_ray_casting_in_the_raw_camera():
     origin, directions = rig.rectified_rays(pixels)
     hits = scene.cast(origin, directions, with_temperature=False)
     points = rig.to_rectified_left(hits.points)
-    result = type('Result', (), {'x_left': pixels[:, 0], 'y': pixels[:, 1], 'points': points,
-                                 '__len__': lambda self: len(pixels)})()
+    result = type('Result', (), {'x_left': pixels[:, 0], 'y': pixels[:, 1],
+                                 'x_point': pixels[:, 0], 'y_point': pixels[:, 1],
+                                 'points': points, '__len__': lambda self: len(pixels)})()
     left_calibration = rig.calibrations()[0]
     errors, ranges, visible, signed = range_errors(result, left_calibration, rig.cameras(),
                                                    scene)

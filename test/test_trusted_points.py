@@ -84,10 +84,9 @@ def test_disparity_image_follows_stereo_image_proc():
     from std_msgs.msg import Header
     fx, baseline, offset = 80.0, 0.55, 3.0
     disparity = fx * baseline / 4.0 + offset
-    msg, shared = disparity_image(Header(), (60, 80), np.array([40]), np.array([30]),
-                                  np.array([disparity]), fx, baseline, 0.0, 40.0,
-                                  disparity_offset=offset)
-    assert shared == 0
+    msg = disparity_image(Header(), (60, 80), np.array([40]), np.array([30]),
+                          np.array([disparity]), fx, baseline, 0.0, 40.0,
+                          disparity_offset=offset)
     image = np.frombuffer(bytes(msg.image.data), dtype='<f4').reshape(60, 80)
     # Z = f T / value, as stereo_image_proc's consumers compute it.
     assert msg.f * msg.t / image[30, 40] == pytest.approx(4.0, rel=1e-5)

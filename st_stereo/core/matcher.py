@@ -126,11 +126,15 @@ class MatchResult:
     y_point: np.ndarray = None
 
     def __post_init__(self):
-        """Set the points' pixels to the features' own when not given."""
+        """Set the points' pixels to the features' own when not given; check the lengths."""
         if self.x_point is None:
             self.x_point = np.asarray(self.x_left, dtype=np.float64)
         if self.y_point is None:
             self.y_point = np.asarray(self.y, dtype=np.float64)
+        lengths = {name: len(getattr(self, name)) for name in
+                   ('x_left', 'y', 'x_point', 'y_point', 'disparity')}
+        if len(set(lengths.values())) != 1:
+            raise ValueError(f'MatchResult: per-match arrays differ in length: {lengths}')
 
     def __len__(self):
         """Return the number of matches."""

@@ -2,16 +2,16 @@
 Where a match's 3-D point belongs: at the image structure its window aligned, not at its centre.
 
 ST measures a feature's disparity with a ``W x W`` Hann-weighted POC window centred on the
-feature's pixel (paper section 2.4, eq. 6). The shift such a window finds is that of the
-structure inside it that carries the horizontal contrast: to first order, a windowed
-correlation's shift is the mean of the local shifts weighted by the squared window times the
-squared horizontal gradient (the normal equations of a windowed least-squares shift,
-``d = sum(w^2 gx^2 d_local) / sum(w^2 gx^2)``). On an 80x60 image a 9-pixel window spans a whole
-person, so a feature one or two pixels off a strong edge (a floor pixel beside a warm person,
-a person's pixel inside their own silhouette) carries the edge's disparity. Placing the point at
-the centroid of that weight, where the measured disparity was measured, keeps the disparity
-and moves the pixel the point is triangulated from (eq. 1 with ``u, v`` the centroid). The
-disparity itself is untouched, so the sub-pixel accuracy of the shifted-frame protocol is too.
+feature's pixel (paper section 2.4, eq. 6). On an 80x60 image a 9-pixel window spans a whole
+person, so a feature one or two pixels off a strong edge (a floor pixel beside a warm person, a
+person's pixel inside their own silhouette) carries the edge's disparity: the structure that
+carries the window's horizontal contrast decides the shift. ``point_location: structure``
+places the point at the centroid of ``w^2 gx^2`` over the window (``w`` the POC's Hann window,
+``gx`` the horizontal gradient) and triangulates it there (eq. 1 with ``u, v`` the centroid);
+the disparity is untouched. The weighting is the one a windowed least-squares shift
+(Lucas-Kanade) gives each pixel's local shift; POC whitens the spectrum, so for it this is an
+approximation, chosen by measurement among five weightings (docs/results.md section 5), not
+derived.
 """
 
 import numpy as np

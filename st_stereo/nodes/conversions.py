@@ -113,16 +113,15 @@ def point_cloud_array(msg):
     return np.frombuffer(bytes(msg.data), dtype='<f4').reshape(msg.width, -1)
 
 
-def disparity_image(header, shape, x, y, disparity, focal, baseline, min_disparity,
-                    max_disparity, valid_window=None, disparity_offset=0.0, rank=None):
+def disparity_image(header, shape, x_left, y, disparity, focal, baseline, min_disparity,
+                    max_disparity, valid_window=None, disparity_offset=0.0):
     """
     Sparse stereo_msgs/DisparityImage: 32FC1, invalid pixels below ``min_disparity``.
 
-    Each match is written at its point's pixel, ``(x, y)`` rounded (``MatchResult.x_point``,
-    ``y_point``: where ``points2`` places it), so ``Z = f T / value`` at that pixel gives the
-    published point's depth. Where several points round to one pixel the one of highest
-    ``rank`` (e.g. the confidence; default: the last) is written; returns the message and
-    the number of matches left out that way.
+    Each match is written at its feature's pixel (``MatchResult.x_left``, ``y``: one match per
+    pixel, every match kept). With ``point_location: structure`` the ``points2`` point of a
+    match lies at its window's structure instead, up to a few pixels away, with the same
+    disparity.
 
     Values are ``d - (cx_left - cx_right)`` (``disparity_offset``), as stereo_image_proc's
     disparity node publishes them (``Z = f T / value``, as its point_cloud node computes);
@@ -135,15 +134,7 @@ def disparity_image(header, shape, x, y, disparity, focal, baseline, min_dispari
     rows, cols = shape
     image = np.full((rows, cols), float(min_disparity) - 1.0 - max(disparity_offset, 0.0),
                     dtype=np.float32)
-    columns = np.clip(np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64), 0, cols - 1)
-    lines = np.clip(np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64), 0, rows - 1)
-    values = np.asarray(disparity, dtype=np.float64) - disparity_offset
-    order = np.arange(len(values))[::-1] if rank is None else \
-        np.argsort(-np.asarray(rank, dtype=np.float64), kind='stable')
-    pixel = (lines * cols + columns)[order]
-    _, first = np.unique(pixel, return_index=True)
-    written = order[first]
-    image[lines[written], columns[written]] = values[written]
+    image[y, x_left] = np.asarray(disparity, dtype=np.float64) - disparity_offset
     msg = DisparityImage()
     msg.header = header
     msg.image = image_to_msg(image, header, '32FC1')
@@ -155,7 +146,7 @@ def disparity_image(header, shape, x, y, disparity, focal, baseline, min_dispari
     if valid_window is not None:
         msg.valid_window.x_offset, msg.valid_window.y_offset = valid_window[:2]
         msg.valid_window.width, msg.valid_window.height = valid_window[2:]
-    return msg, len(values) - len(written)
+    return msg
 
 
 POINT_FIELD_DTYPES = {PointField.INT8: 'i1', PointField.UINT8: 'u1', PointField.INT16: 'i2',

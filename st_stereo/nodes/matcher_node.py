@@ -93,9 +93,6 @@ class MatcherNode(Node):
         self._pair_times_lock = threading.Lock()
         self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
-        # Matches whose point rounds to the pixel of a more confident one: in points2, not in
-        # the DisparityImage (one value per pixel).
-        self.matches_sharing_disparity_pixel = 0
         self.processing_times = []
         self.last_pair_info_problem = ''
         # A pair whose pair_info has not arrived yet (another topic: an executor may deliver
@@ -265,21 +262,21 @@ class MatcherNode(Node):
         self.last_error = ''              # the state is the latest pair's: a good one clears it
         header = left_msg.header
         points = result.points if result.points is not None else np.zeros((0, 3))
-        intensity = left[result.y, result.x_left] if len(result) else np.zeros(0)
+        # The intensity of the pixel each point lies on (its feature's, or its structure's).
+        intensity = left[np.clip(np.rint(result.y_point).astype(int), 0, left.shape[0] - 1),
+                         np.clip(np.rint(result.x_point).astype(int), 0, left.shape[1] - 1)] \
+            if len(result) else np.zeros(0)
         self.points_pub.publish(conversions.point_cloud(header, points, result.disparity,
                                                         result.similarity, intensity,
                                                         result.confidence))
         config = matcher.config
         low, high = matcher.disparity_bounds()
-        disparity_msg, shared = conversions.disparity_image(
-            header, left.shape, result.x_point, result.y_point, result.disparity, model.fx,
+        self.disparity_pub.publish(conversions.disparity_image(
+            header, left.shape, result.x_left, result.y, result.disparity, model.fx,
             model.baseline, max(low, config.disparity_min), min(high, config.disparity_max),
             (config.poc_window // 2, config.poc_window // 2,
              left.shape[1] - 2 * (config.poc_window // 2),
-             left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset,
-            rank=result.confidence)
-        self.disparity_pub.publish(disparity_msg)
-        self.matches_sharing_disparity_pixel += shared
+             left.shape[0] - 2 * (config.poc_window // 2)), model.disparity_offset))
         self.counts['matched'] += 1
         if not len(result):
             self.counts['empty_clouds'] += 1
@@ -299,8 +296,6 @@ class MatcherNode(Node):
     def _publish_diagnostics(self):
         level, summary, values = self.frequency.values(time.monotonic())
         values.update({f'pairs {k}': v for k, v in self.counts.items()})
-        values['matches in points2 only (disparity pixel shared with a more confident one)'] = \
-            self.matches_sharing_disparity_pixel
         values['kernels'] = 'compiled' if use_compiled(self.config.kernels) else 'numpy'
         values['kernels start-up (s)'] = round(self.kernel_warm_up_s, 3)
         values['pairs dropped by sync (left, right, left info, right info)'] = \

@@ -103,8 +103,9 @@ def range_errors(result, calibration, cameras, scene, supersample=4):
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
     du, dv = (a.ravel() for a in np.meshgrid(offsets, offsets))
     projection = np.asarray(calibration.projection)
-    u = (result.x_left[:, None] + np.r_[0.0, du][None]).ravel()
-    v = (result.y[:, None] + np.r_[0.0, dv][None]).ravel()
+    # The pixel each point was triangulated at (MatchResult.x_point: its feature's by default).
+    u = (result.x_point[:, None] + np.r_[0.0, du][None]).ravel()
+    v = (result.y_point[:, None] + np.r_[0.0, dv][None]).ravel()
     rectified = np.column_stack([(u - projection[0, 2]) / projection[0, 0],
                                  (v - projection[1, 2]) / projection[1, 1], np.ones(len(u))])
     directions = rectified @ np.asarray(calibration.rectification) @ camera.rotation

@@ -262,10 +262,13 @@ POC window spans a whole person at 80x60, and a feature one to four pixels off a
 carries the edge's disparity. With ``point_location: structure`` the point is triangulated at
 the centroid of the window's squared Hann weight times squared horizontal gradient (where, to
 first order, a windowed correlation measures its shift) instead of at the feature's pixel.
-Disparities, matches and the shifted-frame accuracy are unchanged; the points move by 0.62 px
-median (p90 1.67, max 3.1 px, every fifth pair of the recording); the centroids cost 1.0 ms
-per 80x60 pair of 556 matches (``structure_offsets`` timed alone, 2026-12-06; in `st-stereo
-bench` it is part of the triangulation stage). Measured with
+Disparities and matches are unchanged (and so the shifted-frame protocol, whose uniform shift
+cannot show where a point is placed); the points move by 0.62 px median (p90 1.67, max 3.1 px,
+every fifth pair of the recording); the centroids cost 1.0-2.0 ms per 80x60 pair of 556
+matches (``structure_offsets`` timed alone, two runs, the second on a loaded machine; in
+`st-stereo bench` it is part of the triangulation stage). The ``DisparityImage`` keeps every
+match at its feature's pixel (placed at their structure, 26-41 % of the points would share a
+pixel with another). Measured with
 `st-stereo eval points --stride 4 [--set point_location=structure]` (2026-12-06; feature ->
 structure; the weighting chosen among five on synchronized pairs of the three tuning
 sequences, meeting_room run once after the choice):
@@ -274,10 +277,21 @@ sequences, meeting_room run once after the choice):
 On the rendered warm box in front of a textured wall (``test/test_point_location.py``, 20
 noise seeds), 355 points at their features' pixels carry the box's disparity more than a
 pixel off the box (51 with the depth-edge check, which drops 518 matches for it); placed at
-their window's structure, none does, with or without the check.
+their window's structure, none does, with or without the check. The test's wall has 4 counts
+of texture against the box's 400: with 15 counts none does either, with 30 counts 2-3 of
+about 3,000 matches over the 20 seeds do (at the box's top and bottom edges; a review's
+variant of the scene, also with the box's edges a quarter pixel off the pixel grid).
 
-Points that were counted on the floor or a wall beside a person land on the person's outline,
-where their disparity belongs (people's point counts grow by 11-20 %). walk_across's people
+Part of the gain is the scoring's: a pixel on a depth edge accepts either side's depth
+(docs: the criteria above), and placed at their structure 37-39 % of the points lie on such
+pixels instead of 21-28 % (the pixel's disparity range wider than 1 px; 18 pairs of each
+tuning sequence, `st-stereo eval points`'s pairing, a review's script). On the points whose
+pixel holds one depth, the strict rate falls from 15.5 / 21.1 / 17.6 % to 10.3 / 14.2 / 11.2 %
+and the 3-D rate from 4.5 / 2.0 / 4.5 % to 4.4 / 1.2 / 4.0 % (walk_across / two_people /
+sit_down): the strict gain is real, the 3-D one mostly the edge pixels'. Points that were
+counted on the floor or a wall beside a person land on the person's outline, where their
+disparity belongs (people's point counts grow by 11-20 %, the same measurements relabelled,
+not new ones). walk_across's people
 outliers grow because such points join the walker's own wrong ones: 15 of its 56 are the first
 pair's (no previous pair, so no skew correction: the walker's legs 2 px short); in the three
 other pairs traced (16, 32, 52) they are moving features whose skew correction was too small,
