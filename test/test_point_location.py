@@ -66,7 +66,8 @@ def test_point_location_moves_points_not_disparities(people_80x60):
     assert structure.to_csv().splitlines()[0].endswith(',confidence,x_point,y_point,X,Y,Z')
 
 
-def test_wall_points_carrying_the_box_disparity_are_placed_on_the_box_edge():
+@pytest.mark.parametrize('wall_texture', [4.0, 15.0])
+def test_wall_points_carrying_the_box_disparity_are_placed_on_the_box_edge(wall_texture):
     # Weakly textured wall pixels up to half a window from a warm box take the box's disparity
     # (their window's contrast is the box's edge). Placed at the feature's pixel such a point
     # floats in front of the wall; placed where the window's structure is, it lies on the
@@ -76,7 +77,7 @@ def test_wall_points_carrying_the_box_disparity_are_placed_on_the_box_edge():
         config = STConfig(depth_edge_check=False, point_location=location)
         away[location] = []
         for seed in range(4):
-            left, right = box_in_front_of_a_wall(seed, box_offset=400.0)
+            left, right = box_in_front_of_a_wall(seed, 400.0, wall_texture=wall_texture)
             result = StereoMatcher(config).match(left, right)
             carried = result.disparity > 9.0
             rows_away = np.maximum(np.maximum(19.5 - result.y_point, result.y_point - 39.5), 0)
@@ -84,10 +85,11 @@ def test_wall_points_carrying_the_box_disparity_are_placed_on_the_box_edge():
             away[location].append(np.maximum(rows_away, cols_away)[carried])
     feature, structure = (np.concatenate(away[k]) for k in ('feature', 'structure'))
     assert len(feature) == len(structure) > 50
-    assert (feature > 1.0).sum() > 40
+    assert (feature > 1.0).sum() > 25
     # Issue 12's criterion: no background point carries the box's disparity beyond one pixel
-    # of its edge (measured over 20 seeds: 355 such points at the features' pixels, 0 placed
-    # at the structure, with or without the depth-edge check).
+    # of its edge (measured over 20 seeds at 4 counts of wall texture: 355 such points at the
+    # features' pixels, 0 placed at the structure, with or without the depth-edge check; 0
+    # too at 15 counts; at 30 counts 2-3 of about 3,000 matches are).
     assert (structure > 1.0).sum() == 0
 
 

@@ -181,9 +181,11 @@ def test_a_tilted_plane_has_no_disparity_bias():
     assert abs(np.median(error)) <= 0.05
 
 
-def box_in_front_of_a_wall(seed, box_offset, supersample=4):
+def box_in_front_of_a_wall(seed, box_offset, supersample=4, wall_texture=4.0):
     """
     Render a textured wall at disparity 6 px and a textured box at 12 px (rows 20-39, cols 35-59).
+
+    The wall's texture has a standard deviation of ``wall_texture`` counts, the box's 60.
 
     Rendered at ``supersample`` times the resolution, so the box's edges fall inside pixels
     as they do in a camera; then averaged down, blurred (sigma 0.6 px) and given noise (2 counts).
@@ -193,7 +195,7 @@ def box_in_front_of_a_wall(seed, box_offset, supersample=4):
     ss = supersample
     rows, cols = 60 * ss, 80 * ss
     wall = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (rows, cols + 6 * ss)), 1.5 * ss)
-    wall = 8000.0 + 4.0 * wall / wall.std()
+    wall = 8000.0 + wall_texture * wall / wall.std()
     box = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (20 * ss, 25 * ss)), 1.5 * ss)
     box = 8000.0 + box_offset + 60.0 * box / box.std()
 
