@@ -40,7 +40,9 @@ def test_simulated_rig_end_to_end(ros):
     context, executor, add = ros
     # Subscribers first: the driver publishes from the moment it exists.
     add(RectifierNode(context=context))
-    add(MatcherNode(context=context))
+    # The temporal check (off by default) on: the node runs it on every pair after the first.
+    add(MatcherNode(context=context, parameter_overrides=[
+        Parameter('temporal_tolerance_px', value=0.3)]))
     collector = add(Collector(context))
     driver = add(DriverNode(context=context, parameter_overrides=[
         Parameter('duration', value=6.0), Parameter('sim_depth', value=3.5),
@@ -73,6 +75,9 @@ def test_simulated_rig_end_to_end(ros):
     # The driver's pair_info gives each pair's skew; the simulated plane does not move.
     assert int(matching['skew pairs_skew_compensated']) > 0
     assert int(matching['skew features_moving']) == 0
+    # Pairs are checked against the one before them (a static plane: its features static).
+    assert int(matching['temporal pairs_checked']) > 0
+    assert int(matching['temporal features_static']) > 0
 
 
 def test_parameters_out_of_range_are_rejected_with_the_reason(ros):

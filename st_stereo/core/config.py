@@ -120,6 +120,14 @@ class STConfig:
                                    '(docs/results.md: outliers against the share kept)',
                                    low=0.0, high=1.0)
 
+    temporal_tolerance_px: float = _field(
+        0.0, 'drop a static match (its window unchanged since the previous pair beyond the '
+        'noise) unless the previous pair matched the same pixel within this many pixels '
+        '(counted as temporal rejected_temporal_unmatched / _inconsistent; the first pair and '
+        'one after a gap are not checked); 0 disables, the default: 0.3 gives fewer 3-D '
+        'outliers, but the people stage then loses a person seen by a handful of points '
+        '(st_stereo.core.temporal, docs/results.md)', low=0.0, high=10.0)
+
     point_location: str = _field(
         'feature', "where a match's 3-D point is placed: feature (the feature's own pixel, the "
         "window centre) or structure (the centroid of the POC window's squared Hann weight "

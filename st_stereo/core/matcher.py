@@ -140,6 +140,22 @@ class MatchResult:
         """Return the number of matches."""
         return len(self.x_left)
 
+    def select(self, keep, disparity=None, points=None):
+        """
+        Return the matches where ``keep`` (bool, one per match) holds; counts unchanged.
+
+        ``disparity`` and ``points`` (all matches' new values, e.g. skew-corrected) replace the
+        result's before the selection when given.
+        """
+        keep = np.asarray(keep, dtype=bool)
+        disparity = self.disparity if disparity is None else disparity
+        points = self.points if points is None else points
+        fields = {name: getattr(self, name)[keep] for name in
+                  ('x_left', 'y', 'x_point', 'y_point', 'similarity', 'poc_peak', 'confidence')
+                  if getattr(self, name) is not None}
+        return dataclasses.replace(self, disparity=disparity[keep],
+                                   points=None if points is None else points[keep], **fields)
+
     @property
     def x_right(self):
         """Sub-pixel column of the match in the right image."""

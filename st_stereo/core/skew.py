@@ -110,17 +110,8 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
     rows, cols = current.shape
     half = window // 2
     reach_x, reach_y = half + search_x + 1, half + search_y
-    # How much each window changed between the frames: the spread of the frame difference
-    # over the window, against the noise level, taken as a low percentile of that spread over
-    # the whole frame (its flattest or static parts: sensor noise alone). A window that did
-    # not change beyond the noise has not moved, whatever its track says.
-    size = 2 * half + 1
-    difference = current - previous
-    mean = cv2.boxFilter(difference, -1, (size, size), borderType=cv2.BORDER_REPLICATE)
-    mean_square = cv2.boxFilter(difference ** 2, -1, (size, size),
-                                borderType=cv2.BORDER_REPLICATE)
-    spread_map = np.sqrt(np.maximum(mean_square - mean ** 2, 0.0))
-    noise = max(float(np.percentile(spread_map, NOISE_PERCENTILE)), 1e-9)
+    # A window that did not change beyond the noise has not moved, whatever its track says.
+    changed = changed_windows(previous, current, x, y, window, change_noise)
     # Windows may leave the image: both frames are extended by edge replication (a feature
     # near the border is still tracked, on the part of its window inside the image). Raw
     # 14-bit counts sit near 8000 with a texture of a few counts: the frame means are taken
@@ -128,14 +119,10 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
     pad = ((reach_y, reach_y), (reach_x, reach_x))
     current = np.pad(current - current.mean(), pad, mode='edge')
     previous = np.pad(previous - previous.mean(), pad, mode='edge')
-    inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
     velocity = np.zeros(n)
     moving = np.zeros(n, dtype=bool)
     tracked = np.zeros(n, dtype=bool)
     best_ncc = np.full(n, np.nan)
-    changed = np.zeros(n, dtype=bool)
-    inside_index = np.flatnonzero(inside)
-    changed[inside_index] = spread_map[y[inside_index], x[inside_index]] > change_noise * noise
     index = np.flatnonzero(changed)
     if len(index):
         xi, yi = x[index] + reach_x, y[index] + reach_y
@@ -178,6 +165,32 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         moving[index] = moves
         velocity[index] = np.where(moves, shift / period_s, 0.0)
     return FeatureMotion(velocity, moving, changed, tracked, best_ncc)
+
+
+def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
+    """
+    Whether each feature's window changed between two frames of one camera beyond the noise.
+
+    The spread (standard deviation) of the frame difference over the ``window x window``
+    square at each feature, against ``change_noise`` times the frame's noise level, taken as
+    the 5th percentile of that spread over the whole frame (its flattest or static parts:
+    sensor noise alone). Features outside the image have not changed (False).
+    """
+    previous = np.asarray(previous, dtype=np.float64)
+    current = np.asarray(current, dtype=np.float64)
+    x, y = np.asarray(x, dtype=np.int64), np.asarray(y, dtype=np.int64)
+    size = 2 * (window // 2) + 1
+    difference = current - previous
+    mean = cv2.boxFilter(difference, -1, (size, size), borderType=cv2.BORDER_REPLICATE)
+    mean_square = cv2.boxFilter(difference ** 2, -1, (size, size),
+                                borderType=cv2.BORDER_REPLICATE)
+    spread_map = np.sqrt(np.maximum(mean_square - mean ** 2, 0.0))
+    noise = max(float(np.percentile(spread_map, NOISE_PERCENTILE)), 1e-9)
+    rows, cols = current.shape
+    inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
+    changed = np.zeros(len(x), dtype=bool)
+    changed[inside] = spread_map[y[inside], x[inside]] > change_noise * noise
+    return changed
 
 
 def poc_velocity(frames, camera, left, right, x_left, y, disparity, velocity_x, config,
@@ -482,9 +495,6 @@ class SkewCompensator:
             inside = (disparity >= bounds[0]) & (disparity <= bounds[1])
             self.counts['rejected_skew_range'] += int((keep & ~inside).sum())
             keep &= inside
-        points = triangulate(model, result.x_point[keep], result.y_point[keep],
-                             disparity[keep]) if model is not None else None
-        fields = {name: getattr(result, name)[keep] for name in
-                  ('x_left', 'y', 'x_point', 'y_point', 'similarity', 'poc_peak', 'confidence')
-                  if getattr(result, name) is not None}
-        return dataclasses.replace(result, disparity=disparity[keep], points=points, **fields)
+        points = triangulate(model, result.x_point, result.y_point, disparity) \
+            if model is not None else None
+        return result.select(keep, disparity, points)

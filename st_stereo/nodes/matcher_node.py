@@ -29,6 +29,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.kernels import use_compiled, warm_up
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.skew import compensation_options, SkewCompensator
+from st_stereo.core.temporal import TemporalCheck
 from st_stereo.core.triangulation import StereoModel
 from st_stereo.lepton.pairing import pair_ffc_from_values, pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics
@@ -82,6 +83,8 @@ class MatcherNode(Node):
                   (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
         self.skew = SkewCompensator()
+        # Static matches the previous pair did not make alike are dropped (temporal_tolerance_px).
+        self.temporal = TemporalCheck()
         self.pair_times = {}         # pair stamp -> (left acquisition time, skew), seconds
         self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info, RELIABLE)
         self.frequency = diagnostics.FrequencyTracker(
@@ -255,6 +258,11 @@ class MatcherNode(Node):
                 result = self._compensate_skew(result, left, right, left_msg, model,
                                                matcher.disparity_bounds(),
                                                matcher.config)
+            if matcher.config.temporal_tolerance_px > 0:
+                self.temporal.tolerance_px = matcher.config.temporal_tolerance_px
+                stamp = left_msg.header.stamp
+                result = self.temporal.check(result, left, stamp.sec + stamp.nanosec * 1e-9,
+                                             model)
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = self.last_drop_reason = str(error)
@@ -315,6 +323,7 @@ class MatcherNode(Node):
         if result is not None:
             values.update(result.counts)
             values.update({f'skew {k}': v for k, v in self.skew.counts.items()})
+            values.update({f'temporal {k}': v for k, v in self.temporal.counts.items()})
             values.update({f'time {k} (ms)': round(v, 2) for k, v in
                            result.timings_ms.items()})
         if result is not None and not len(result) and level == diagnostics.OK:

@@ -22,6 +22,7 @@ from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import compensation_options, SkewCompensator
+from st_stereo.core.temporal import TemporalCheck
 from st_stereo.sim.scoring import (markdown_motion_table, markdown_surface_table, MotionTally,
                                    people_disparity_errors, PointTally, score_points)
 
@@ -51,20 +52,27 @@ class PairMatching:
         self.config = config or STConfig()
         self.matcher = StereoMatcher(self.config, model=rectifier.model)
         self.skew = SkewCompensator()
+        self.temporal = TemporalCheck(self.config.temporal_tolerance_px) \
+            if self.config.temporal_tolerance_px > 0 else None    # off by default
 
     def observe(self, left_raw, right_raw, left_time_s, skew_s):
-        """Remember a pair's images (the pair is not matched)."""
+        """Remember a pair's images (with the temporal check, its matches too): not scored."""
+        if self.temporal is not None:
+            self.match(left_raw, right_raw, left_time_s, skew_s)
+            return
         left, right = self.rectifier.rectify(left_raw, right_raw)
         self.skew.remember(left, left_time_s, right, skew_s)
 
     def match(self, left_raw, right_raw, left_time_s, skew_s):
-        """Return the pair's MatchResult (skew-corrected when the configuration says so)."""
+        """Return the pair's MatchResult, skew-corrected and checked as configured."""
         left, right = self.rectifier.rectify(left_raw, right_raw)
         result = self.matcher.match(left, right, **self.rectifier.valid_keywords())
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
                                        self.matcher.disparity_bounds(), right=right,
                                        **compensation_options(self.config))
+        if self.temporal is not None:
+            result = self.temporal.check(result, left, left_time_s, self.rectifier.model)
         return result
 
 

@@ -256,12 +256,36 @@ meeting_room figures were seen while the check was designed, so that sequence is
 strictly held out for this mechanism. The check assumes the nearer object is the warmer one:
 in front of a warmer background it removes nothing (``st_stereo.core.depth_edges``).
 
+**Consistency with the previous pair** (``temporal_tolerance_px``, since 2026-12-06, off by
+default, ``st_stereo.core.temporal``; the tables above are without it): with a tolerance, a
+match whose window did not change since the previous pair beyond the noise sees the same
+scene, so it is kept only when the previous pair matched the same pixel within that many
+pixels; moving features and the first pair (or one after a gap) are not checked. It costs
+0.13 ms per 80x60 pair. Measured with `st-stereo eval points --stride 4 [--set
+temporal_tolerance_px=0.3]` (2026-12-06; the tolerance chosen on synchronized pairs of
+sit_down and two_people, where static matches unmatched in the previous pair were 8.5 / 6.2 %
+of the static ones and held 50 / 42 % of their 3-D outliers, and those more than 0.3 px off 2.6
+/ 0.5 %, holding 31 / 6 %;
+meeting_room run once after the choice):
+
+{temporal_table()}
+The evaluation matches the pair before each scored one so the check has its previous pair, as
+the node does with every pair (`st-stereo eval skew`, which compares the skew compensation,
+runs without it). **Why it is off by default**: `st-stereo eval people --set
+temporal_tolerance_px=0.3` (2026-12-06) loses one of two_people's two people from pair 34 on
+(recall 97.1 -> 71.4 %, MOTA 0.714): that person shows 4-7 matched points per pair there and
+the check takes one or two of them, below what the people stage needs for a detection;
+open_office recall 63.2 -> 59.0 % (precision 95.5 -> 100 %); every other row the same
+recall, precision and id switches. The people stage needs more than a handful of points per
+person before the points can be thinned like this.
+
 **Where the point is placed** (``point_location``, since 2026-12-06,
 ``st_stereo.core.point_location``; the tables above use the default, ``feature``). A 9-pixel
 POC window spans a whole person at 80x60, and a feature one to four pixels off a strong edge
 carries the edge's disparity. With ``point_location: structure`` the point is triangulated at
-the centroid of the window's squared Hann weight times squared horizontal gradient (where, to
-first order, a windowed correlation measures its shift) instead of at the feature's pixel.
+the centroid of the window's squared Hann weight times squared horizontal gradient (the
+weight a windowed least-squares shift gives each pixel's local shift; for POC, which whitens
+the spectrum, an approximation chosen by measurement) instead of at the feature's pixel.
 Disparities and matches are unchanged (and so the shifted-frame protocol, whose uniform shift
 cannot show where a point is placed); the points move by 0.62 px median (p90 1.67, max 3.1 px,
 every fifth pair of the recording); the centroids cost 1.0-2.0 ms per 80x60 pair of 556
@@ -269,9 +293,9 @@ matches (``structure_offsets`` timed alone, two runs, the second on a loaded mac
 `st-stereo bench` it is part of the triangulation stage). The ``DisparityImage`` keeps every
 match at its feature's pixel (placed at their structure, 26-41 % of the points would share a
 pixel with another). Measured with
-`st-stereo eval points --stride 4 [--set point_location=structure]` (2026-12-06; feature ->
-structure; the weighting chosen among five on synchronized pairs of the three tuning
-sequences, meeting_room run once after the choice):
+`st-stereo eval points --stride 4 [--set point_location=structure]` (2026-12-06, without the
+temporal check above; feature -> structure; the weighting chosen among five on synchronized
+pairs of the three tuning sequences, meeting_room run once after the choice):
 
 {point_location_table()}
 On the rendered warm box in front of a textured wall (``test/test_point_location.py``, 20
@@ -291,11 +315,11 @@ and the 3-D rate from 4.5 / 2.0 / 4.5 % to 4.4 / 1.2 / 4.0 % (walk_across / two_
 sit_down): the strict gain is real, the 3-D one mostly the edge pixels'. Points that were
 counted on the floor or a wall beside a person land on the person's outline, where their
 disparity belongs (people's point counts grow by 11-20 %, the same measurements relabelled,
-not new ones). walk_across's people
-outliers grow because such points join the walker's own wrong ones: 15 of its 56 are the first
-pair's (no previous pair, so no skew correction: the walker's legs 2 px short); in the three
-other pairs traced (16, 32, 52) they are moving features whose skew correction was too small,
-too large, or, for the walker turning at the image's right edge, of the wrong sign (+1.9 px
+not new ones). walk_across's people outliers grow because such points join the walker's own
+wrong ones: 15 of its 56 are the first pair's (no previous pair, so no skew correction: the
+walker's legs 2 px short); in the three other pairs traced (16, 32, 52) they are moving
+features whose skew correction was too small, too large, or, for the walker turning at the
+image's right edge, of the wrong sign (+1.9 px
 instead of -1.6 px; issue 14).
 
 **Why it is not the default.** The people stage (docs/people.md) was tuned on points at their
@@ -308,10 +332,10 @@ by 6-55 mm on six of the seven (walk_across 0.131 -> 0.156 m: the lateral median
 -> 0.061 m, the points on the outline shifting the median; sit_down's down, 0.074 -> 0.058
 m), open_office recall 63.2 -> 72.9 % but precision 95.5 -> 83.3 % and id switches 4 -> 5,
 crossing 2 id switches (none), meeting_room recall 62.4 -> 62.9 %, the recording 84.4 ->
-85.9 %. Moving only the points of features on the cool
-side of their window's structure (background beside a warm body) gave the same 3-D outliers on
-the tuning sequences (3.8 / 1.0 / 2.3 %) and walk_across's horizontal median 0.135 m, but the
-same sit_down recall (85.6 %); not kept. A consumer of ``points2`` that does not run the
+85.9 %. Moving only the points of features on the cool side of their window's structure
+(background beside a warm body) gave the same 3-D outliers on the tuning sequences (3.8 / 1.0 /
+2.3 %) and walk_across's horizontal median 0.135 m, but the same sit_down recall (85.6 %); not
+kept. A consumer of ``points2`` that does not run the
 people stage gets the better points with ``point_location: structure``.
 
 Disparity error of the matches on people (what a moving person's points carry), by the pair's
@@ -368,10 +392,36 @@ POINT_LOCATION_ROWS = (
 
 def point_location_table():
     """Return the measured feature -> structure table of ``point_location`` (Markdown)."""
-    lines = ['| ' + ' | '.join(POINT_LOCATION_COLUMNS) + ' |',
-             '|' + '---|' * len(POINT_LOCATION_COLUMNS)]
-    lines += ['| ' + ' | '.join(row) + ' |' for row in POINT_LOCATION_ROWS]
+    return markdown_rows(POINT_LOCATION_COLUMNS, POINT_LOCATION_ROWS)
+
+
+# `st-stereo eval points --stride 4 [--set temporal_tolerance_px=0.3]`, 2026-12-06: off -> on.
+TEMPORAL_COLUMNS = ('sequence', 'points', 'outliers 3-D, all', 'on people', 'strict',
+                    'correct / frame', 'correct on people / frame')
+TEMPORAL_ROWS = (
+    ('walk_across', '3065 -> 2892', '4.3 -> 3.8 %', '3.0 -> 3.1 %', '12.3 -> 11.5 %',
+     '162.9 -> 154.5', '63.7 -> 63.3'),
+    ('two_people', '5308 -> 5016', '1.9 -> 1.1 %', '0.3 -> 0.3 %', '15.4 -> 14.5 %',
+     '289.4 -> 275.7', '151.6 -> 148.1'),
+    ('sit_down', '5813 -> 5435', '3.2 -> 2.2 %', '0.7 -> 0.7 %', '13.2 -> 12.0 %',
+     '216.3 -> 204.5', '79.2 -> 78.9'),
+    ('meeting_room (held out)', '4351 -> 4073', '3.0 -> 2.4 %', '0.2 -> 0.2 %',
+     '14.1 -> 12.9 %', '234.4 -> 220.8', '159.0 -> 152.2'),
+    ('recording', '42458 -> 40404', '2.2 -> 1.8 %', '0.6 -> 0.6 %', '13.0 -> 12.3 %',
+     '298.7 -> 285.6', '146.2 -> 144.0'),
+)
+
+
+def markdown_rows(columns, rows):
+    """Return a Markdown table of string rows."""
+    lines = ['| ' + ' | '.join(columns) + ' |', '|' + '---|' * len(columns)]
+    lines += ['| ' + ' | '.join(row) + ' |' for row in rows]
     return chr(10).join(lines) + chr(10)
+
+
+def temporal_table():
+    """Return the measured off -> on table of ``temporal_tolerance_px`` (Markdown)."""
+    return markdown_rows(TEMPORAL_COLUMNS, TEMPORAL_ROWS)
 
 
 POINTS_BEFORE = 'points_before.json'
