@@ -91,6 +91,19 @@ def test_a_dropped_match_is_judged_again_against_the_next_pair(texture):
     assert len(check.check(third, third_left, 2 * PERIOD_S, MODEL)) > 0.9 * len(third)
 
 
+def test_a_border_without_data_does_not_make_every_window_changed(texture):
+    # A rectified image's border without data is 0 in both frames: it must not set the noise
+    # level (before, a border of 5 % or more made it zero and no window static).
+    from st_stereo.core.skew import changed_windows
+    previous, current = noisy(texture, 1), noisy(texture, 2)
+    previous[:, :10] = current[:, :10] = 0.0                 # 12.5 % of the image
+    x, y = np.meshgrid(np.arange(20, 70, 5), np.arange(10, 50, 5))
+    assert changed_windows(previous, current, x.ravel(), y.ravel()).mean() < 0.1
+    moved = noisy(fourier_shift_image_x(texture, 2.0), 3)
+    moved[:, :10] = 0.0
+    assert changed_windows(previous, moved, x.ravel(), y.ravel()).mean() > 0.9
+
+
 def test_moving_features_are_not_checked(texture):
     # The scene moves 3 px between the pairs: the windows change, nothing is judged static.
     check = TemporalCheck(0.3)

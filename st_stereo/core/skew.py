@@ -107,7 +107,6 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         raise ValueError(f'previous_left: expected shape {current.shape}, got {previous.shape}')
     x, y = np.asarray(x, dtype=np.int64), np.asarray(y, dtype=np.int64)
     n = len(x)
-    rows, cols = current.shape
     half = window // 2
     reach_x, reach_y = half + search_x + 1, half + search_y
     # A window that did not change beyond the noise has not moved, whatever its track says.
@@ -173,8 +172,9 @@ def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
 
     The spread (standard deviation) of the frame difference over the ``window x window``
     square at each feature, against ``change_noise`` times the frame's noise level, taken as
-    the 5th percentile of that spread over the whole frame (its flattest or static parts:
-    sensor noise alone). Features outside the image have not changed (False).
+    the 5th percentile of that spread over the frame's pixels that change at all (its
+    flattest or static parts: sensor noise alone; a border without data never changes).
+    Features outside the image have not changed (False).
     """
     previous = np.asarray(previous, dtype=np.float64)
     current = np.asarray(current, dtype=np.float64)
@@ -185,7 +185,12 @@ def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
     mean_square = cv2.boxFilter(difference ** 2, -1, (size, size),
                                 borderType=cv2.BORDER_REPLICATE)
     spread_map = np.sqrt(np.maximum(mean_square - mean ** 2, 0.0))
-    noise = max(float(np.percentile(spread_map, NOISE_PERCENTILE)), 1e-9)
+    # Pixels without data (a rectified image's border, 0 in both frames) do not change at
+    # all: left in, a border of 5 % or more would make the noise level zero and every window
+    # with real noise 'changed'.
+    with_data = spread_map[spread_map > 0]
+    noise = max(float(np.percentile(with_data, NOISE_PERCENTILE)), 1e-9) \
+        if with_data.size else 1e-9
     rows, cols = current.shape
     inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
     changed = np.zeros(len(x), dtype=bool)
@@ -495,6 +500,7 @@ class SkewCompensator:
             inside = (disparity >= bounds[0]) & (disparity <= bounds[1])
             self.counts['rejected_skew_range'] += int((keep & ~inside).sum())
             keep &= inside
-        points = triangulate(model, result.x_point, result.y_point, disparity) \
-            if model is not None else None
-        return result.select(keep, disparity, points)
+        if model is None:               # no geometry: no points (not the uncorrected ones)
+            return dataclasses.replace(result.select(keep, disparity), points=None)
+        return result.select(keep, disparity,
+                             triangulate(model, result.x_point, result.y_point, disparity))
