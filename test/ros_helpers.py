@@ -113,19 +113,22 @@ class Clouds(Node):
         self.by_stamp[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = bytes(msg.data)
 
 
-def replay_through_matcher(bag, rate=0.5, use_sim_time=False):
+def replay_through_matcher(bag, rate=0.5, use_sim_time=False, keep_latest=True):
     """
     Play ``bag`` (BagPlayer) into a rectifier and a matcher; return what came out.
 
-    With ``use_sim_time`` the player publishes ``/clock`` and the nodes run on it. Returns
-    ``(clouds {stamp: bytes}, messages published, the matcher node)``.
+    With ``use_sim_time`` the player publishes ``/clock`` and the nodes run on it; without
+    ``keep_latest`` the matcher matches every pair in order (a loaded machine cannot make it
+    drop a stale one). Returns ``(clouds {stamp: bytes}, messages published, the matcher
+    node)``.
     """
     from st_stereo.nodes.bags import BagPlayer
     from st_stereo.nodes.matcher_node import MatcherNode
     from st_stereo.nodes.rectifier_node import RectifierNode
     context, executor = new_context()
     overrides = [Parameter('use_sim_time', value=use_sim_time)]
-    matcher = MatcherNode(context=context, parameter_overrides=overrides)
+    matcher = MatcherNode(context=context, parameter_overrides=overrides + [
+        Parameter('keep_latest', value=keep_latest)])
     nodes = [RectifierNode(context=context, parameter_overrides=overrides), matcher,
              Clouds(context)]
     player = BagPlayer(bag, rate=rate, publish_clock=use_sim_time, context=context)
