@@ -133,6 +133,24 @@ def test_a_pair_without_a_usable_previous_one_is_not_checked(texture, change):
     assert check.counts['pairs_without_previous'] == 2 and check.counts['pairs_checked'] == 0
 
 
+def test_a_pair_in_a_flat_field_correction_and_the_next_are_not_checked(texture):
+    # A frozen left frame equals the previous one: every window looks static, so a pair with
+    # a camera in FFC (pair_info) and the pair after it are passed through, counted.
+    check = TemporalCheck(0.3)
+    left, right = pair(texture, 12.0, 1)
+    check.check(match(left, right), left, 0.0, MODEL)
+    frozen = match(left, fourier_shift_image_x(left, 12.6))        # the right view moved
+    assert check.check(frozen, left, PERIOD_S, MODEL, ffc=True) is frozen
+    after_left, after_right = pair(texture, 12.6, 2)
+    after = match(after_left, after_right)
+    assert check.check(after, after_left, 2 * PERIOD_S, MODEL) is after
+    assert check.counts['pairs_in_ffc'] == 2 and check.counts['pairs_checked'] == 0
+    again_left, again_right = pair(texture, 12.6, 3)
+    again = match(again_left, again_right)
+    assert len(check.check(again, again_left, 3 * PERIOD_S, MODEL)) > 0.9 * len(again)
+    assert check.counts['pairs_checked'] == 1
+
+
 def test_the_tolerance_is_validated():
     with pytest.raises(ValueError, match='tolerance_px: expected > 0, got 0'):
         TemporalCheck(0)

@@ -17,18 +17,21 @@ their 3-D outliers; with a tolerance of 0.3 px, the inconsistent ones 2.6 / 0.5 
 Off by default (``temporal_tolerance_px`` 0): the people stage loses a person seen by a
 handful of points when it thins them (docs/results.md section 5).
 
-Moving features (their window changed) are not checked; nor is a pair without a usable
-previous one (the first, one after a gap longer than ``max_age_s``, another image size or
-another calibration), counted as such. The previous pair's matches are remembered before this
-check, so a feature dropped once is judged again against the next pair.
+Moving features (their window changed) are not checked; nor is a pair with a camera in a
+flat-field correction, or the pair after it (a frozen frame looks static everywhere), nor a
+pair without a usable previous one (the first, one after a gap longer than ``max_age_s``,
+another image size or another calibration), counted as such. The previous pair's matches are
+remembered before this check, so a feature dropped once is judged again against the next
+pair.
 """
 
 import numpy as np
 
 from st_stereo.core.skew import changed_windows
 
-TEMPORAL_COUNT_KEYS = ('pairs_checked', 'pairs_without_previous', 'features_static',
-                       'rejected_temporal_unmatched', 'rejected_temporal_inconsistent')
+TEMPORAL_COUNT_KEYS = ('pairs_checked', 'pairs_without_previous', 'pairs_in_ffc',
+                       'features_static', 'rejected_temporal_unmatched',
+                       'rejected_temporal_inconsistent')
 
 
 def previous_disparity_map(shape, x_left, y, disparity):
@@ -67,14 +70,16 @@ class TemporalCheck:
         self.tolerance_px = float(tolerance_px)
         self.max_age_s = float(max_age_s)
         self.previous = None          # (left image, time, model, disparity map)
+        self.previous_ffc = False
         self.counts = dict.fromkeys(TEMPORAL_COUNT_KEYS, 0)
 
-    def remember(self, result, left, time_s, model=None):
+    def remember(self, result, left, time_s, model=None, ffc=False):
         """Keep a pair's left image and matches for the next pair (no check)."""
         left = np.asarray(left, dtype=np.float64)
         self.previous = (left, time_s, model,
                          previous_disparity_map(left.shape, result.x_left, result.y,
                                                 result.disparity))
+        self.previous_ffc = bool(ffc)
 
     def _usable(self, left, time_s, model):
         if self.previous is None:
@@ -84,13 +89,22 @@ class TemporalCheck:
         return image.shape == np.shape(left) and previous_model == model and \
             age is not None and 0.0 < age <= self.max_age_s
 
-    def check(self, result, left, time_s, model=None):
-        """Return ``result`` without the static matches the previous pair did not make alike."""
+    def check(self, result, left, time_s, model=None, ffc=False):
+        """
+        Return ``result`` without the static matches the previous pair did not make alike.
+
+        ``ffc``: a camera of this pair was in a flat-field correction (``pair_info``): its
+        frozen frame makes every window look static, so neither this pair nor the next is
+        checked (counted as ``pairs_in_ffc``).
+        """
         usable = self._usable(left, time_s, model)
-        previous = self.previous
-        self.remember(result, left, time_s, model)
+        previous, frozen = self.previous, bool(ffc) or self.previous_ffc
+        self.remember(result, left, time_s, model, ffc)
         if not usable:
             self.counts['pairs_without_previous'] += 1
+            return result
+        if frozen:
+            self.counts['pairs_in_ffc'] += 1
             return result
         self.counts['pairs_checked'] += 1
         image, _, _, disparity_map = previous

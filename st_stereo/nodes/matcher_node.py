@@ -206,13 +206,15 @@ class MatcherNode(Node):
                 time.monotonic() - self._waiting[0] > self.pair_info_wait:
             self._release_waiting()       # matched without skew compensation (counted)
 
-    def _compensate_skew(self, result, left, right, msg, model, bounds, config):
-        stamp = _stamp_key(msg)
+    def _pair_times_of(self, msg):
         # Without its pair_info a pair has neither a skew nor a left acquisition time (the
-        # header stamp is the pair's midpoint): nothing is corrected, and the next pair has no
-        # usable previous time either.
+        # header stamp is the pair's midpoint) nor FFC flags: nothing is corrected, and the
+        # next pair has no usable previous time either.
         with self._pair_times_lock:
-            left_time, skew, ffc = self.pair_times.pop(stamp, (None, None, (False, False)))
+            return self.pair_times.pop(_stamp_key(msg), (None, None, (False, False)))
+
+    def _compensate_skew(self, result, left, right, pair_times, model, bounds, config):
+        left_time, skew, ffc = pair_times
         return self.skew.correct(result, left, left_time, skew, model, bounds, right=right,
                                  ffc=ffc, **compensation_options(config))
 
@@ -253,16 +255,17 @@ class MatcherNode(Node):
             matcher.model = model
             result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
                                    right_valid=data_mask(right_msg, right))
+            pair_times = self._pair_times_of(left_msg)
             # The matcher's own configuration: a live change may replace self.config meanwhile.
             if matcher.config.skew_compensation:
-                result = self._compensate_skew(result, left, right, left_msg, model,
+                result = self._compensate_skew(result, left, right, pair_times, model,
                                                matcher.disparity_bounds(),
                                                matcher.config)
             if matcher.config.temporal_tolerance_px > 0:
                 self.temporal.tolerance_px = matcher.config.temporal_tolerance_px
                 stamp = left_msg.header.stamp
                 result = self.temporal.check(result, left, stamp.sec + stamp.nanosec * 1e-9,
-                                             model)
+                                             model, ffc=any(pair_times[2]))
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = self.last_drop_reason = str(error)

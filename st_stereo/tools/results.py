@@ -344,10 +344,10 @@ on walk_across / two_people / sit_down, 0.4 % on meeting_room (held out), 1.1 % 
 recording; on people 4.2 / 0.4 / 0.8 %, 0.2 %, 0.6 %; strict 6.5 / 8.7 / 5.5 %, 5.9 %, 6.9 %;
 median abs dZ/Z 2.39 / 1.85 / 2.02 %, 2.44 %, 2.16 %; 2892 / 5016 / 5435, 4073 and 40404
 points (the temporal check's). The 2 % target is then met but on walk_across, whose excess is
-its walker's skew-corrected points (issue 14); median abs dZ/Z <= 1 % is met nowhere. Known
-limits of the temporal check: a left camera frozen by an FFC makes every window static and
-the check compares the frozen frame's matches (the FFC flags of ``pair_info`` are not passed
-to it); a live change of another matcher parameter makes the next pair lose its static
+its walker's skew-corrected points (issue 14); median abs dZ/Z <= 1 % is met nowhere. The
+temporal check passes a pair with a camera in an FFC (``pair_info``'s flags: a frozen frame
+looks static everywhere) and the pair after it, counted as ``pairs_in_ffc``. Its known
+limits: a live change of another matcher parameter makes the next pair lose its static
 matches as unmatched, once; with ``keep_latest`` dropping pairs the previous matched pair may
 be older than 0.25 s, and the pair is then not checked (counted).
 
