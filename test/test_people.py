@@ -276,6 +276,43 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
     assert tracker.counts['started'] == 1
 
 
+def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection():
+    rig, transform, intrinsics = _rig_geometry()
+    # A person 2.8 m off, head in the image; a warm screen on a desk (cool knee space below).
+    body_warm, body_points, body_pixels = _painted(rig, _legs(-0.6, 2.8, top=1.6))
+    screen = np.array([[x, 3.0, z] for x in np.linspace(0.7, 1.3, 30)
+                       for z in np.linspace(0.78, 1.15, 20)])
+    screen_warm, screen_points, screen_pixels = _painted(rig, screen)
+    warm = body_warm | screen_warm
+    points, pixels = np.vstack([body_points, screen_points]), np.vstack([body_pixels,
+                                                                         screen_pixels])
+
+    def whole(x, y, head):
+        return Detection(x, y, head, 60, 1.0, np.eye(2) * 1e-3)
+    counts = {}
+    marked = standing_on_legs([whole(-0.6, 2.8, 1.55), whole(1.0, 3.0, 1.1),
+                               whole(-0.6, 2.8, 0.8)], warm, transform, intrinsics, points,
+                              pixels, counts=counts)
+    # The body stands on its legs; the screen has none; a head too low is not checked.
+    assert [d.legs_under_head for d in marked] == [True, False, False]
+    assert counts['head_legs_checked'] == 2 and counts['head_legs_seen'] == 1
+    assert not any(d.legs_seen for d in marked)     # the cut bodies' flag is not touched
+    off = PeopleConfig(confirm_on_legs=False)
+    assert not standing_on_legs([whole(-0.6, 2.8, 1.55)], warm, transform, intrinsics,
+                                points, pixels, off)[0].legs_under_head
+    # Published at the first detection on legs; without legs (or the option off) at min_hits.
+    for config, detection, first in ((None, marked[0], 1), (None, whole(-0.6, 2.8, 1.55), 0),
+                                     (off, marked[0], 0)):
+        tracker = PeopleTracker(config)
+        published = [len(tracker.update([detection], t)) for t in (0.0, 0.115)]
+        assert published == [first, 1], (config, detection)
+    # Only a track's first detection: one that starts without legs waits for min_hits.
+    tracker = PeopleTracker(PeopleConfig(min_hits=3))
+    published = [len(tracker.update([d], t)) for d, t in
+                 ((whole(-0.6, 2.8, 1.55), 0.0), (marked[0], 0.115), (marked[0], 0.23))]
+    assert published == [0, 0, 1]
+
+
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():
     rig, transform, intrinsics = _rig_geometry()
     warm, points, pixels = _painted(rig, _legs(-1.0, 4.3))
@@ -291,7 +328,8 @@ def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted()
                               transform, intrinsics, points, pixels, counts=counts)
     assert [d.legs_seen for d in marked] == [True, False, False]
     assert counts == {'cut_legs_checked': 2, 'cut_legs_seen': 1, 'cut_legs_out_of_image': 1,
-                      'cut_legs_fragment': 1, 'cut_legs_gap': 0}
+                      'cut_legs_fragment': 1, 'cut_legs_gap': 0, 'head_legs_checked': 0,
+                      'head_legs_seen': 0}
     assert standing_on_legs([fragment], warm, transform, intrinsics, points,
                             pixels)[0].legs_seen
 

@@ -91,6 +91,10 @@ class PeopleConfig:
         'grows while it coasts: it would take a stray detection metres away), s')
     min_hits: int = _field(
         2, 'detections before a track is published')
+    confirm_on_legs: bool = _field(
+        True, 'a new track is published at its first detection, not after min_hits, when that '
+        'one is not cut by the top edge, its head is high enough and it stands on warm legs '
+        'at its depth as a body cut by the top edge must (legs_min_fraction, legs_max_gap_m)')
     min_travel_m: float = _field(
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
@@ -221,6 +225,7 @@ class Detection:
     depth_spread_m: float = 0.0
     members: np.ndarray = None    # indices of its points in the points given to detect_people
     legs_seen: bool = False
+    legs_under_head: bool = False  # not cut by the top edge, head high enough, on legs
 
 
 class WarmBackground:
@@ -418,6 +423,20 @@ def warm_column_gap_m(warm, floor_xy, transform, intrinsics, points, pixels, con
     return longest * 0.0125
 
 
+def on_warm_legs(warm, detection, transform, intrinsics, points, pixels, config):
+    """
+    Whether a detection stands on warm legs at its depth, its warm column without a gap.
+
+    ``legs_fraction`` at least ``legs_min_fraction`` and ``warm_column_gap_m`` not longer
+    than ``legs_max_gap_m`` (the arguments are those functions'); False when the legs are
+    off the image.
+    """
+    floor_xy = (detection.x, detection.y)
+    fraction = legs_fraction(warm, floor_xy, transform, intrinsics, points, pixels, config)
+    return bool(fraction >= config.legs_min_fraction) and warm_column_gap_m(
+        warm, floor_xy, transform, intrinsics, points, pixels, config) <= config.legs_max_gap_m
+
+
 def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, config=None,
                      counts=None):
     """
@@ -434,15 +453,27 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     ``counts`` (a dict, optional) gains ``cut_legs_checked``, ``cut_legs_seen``,
     ``cut_legs_out_of_image`` (the segment off the image), ``cut_legs_fragment`` and
     ``cut_legs_gap``.
+
+    With ``confirm_on_legs``, a detection not cut by the top edge whose head is at least
+    ``min_head_height_m`` high gets the same test and ``legs_under_head`` when it passes
+    (``head_legs_checked``, ``head_legs_seen``): a track starting on it is published at
+    once (``PeopleTracker``).
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('cut_legs_checked', 'cut_legs_seen', 'cut_legs_out_of_image',
-                'cut_legs_fragment', 'cut_legs_gap'):
+                'cut_legs_fragment', 'cut_legs_gap', 'head_legs_checked', 'head_legs_seen'):
         counts.setdefault(key, 0)
     standing, out = [], []
     for detection in detections:
         if not detection.cut_top:
+            if config.confirm_on_legs and \
+                    detection.head_height >= config.min_head_height_m:
+                counts['head_legs_checked'] += 1
+                if on_warm_legs(warm, detection, transform, intrinsics, points, pixels,
+                                config):
+                    counts['head_legs_seen'] += 1
+                    detection = dataclasses.replace(detection, legs_under_head=True)
             out.append(detection)
             continue
         if any(math.hypot(detection.x - x, detection.y - y) < 2 * config.person_radius_m
@@ -783,8 +814,10 @@ class PeopleTracker:
                 alive.append(track)
         self.tracks = alive
         for track in self.tracks:
+            on_legs = self.config.confirm_on_legs and track.hits == 1 and \
+                track.detection is not None and track.detection.legs_under_head
             if not track.confirmed and track.updated and \
-                    track.hits >= self.config.min_hits and \
+                    (track.hits >= self.config.min_hits or on_legs) and \
                     (track.seen_as_person or track.travel_m >= self.config.min_travel_m):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
