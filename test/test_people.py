@@ -13,10 +13,11 @@ import types
 
 import numpy as np
 import pytest
-from st_stereo.core.people import (detect_people, Detection, legs_fraction, PeopleConfig,
-                                   PeopleEstimator, PeopleTracker, rectified_to_world,
-                                   standing_on_legs, vertical_segment_rows, warm_column_gap_m,
-                                   WarmBackground, world_from_rectified)
+from st_stereo.core.people import (camera_centre_in_world, detect_people, Detection,
+                                   legs_fraction, PeopleConfig, PeopleEstimator, PeopleTracker,
+                                   rectified_to_world, standing_on_legs, vertical_segment_rows,
+                                   warm_column_gap_m, warm_run_width_m, WarmBackground,
+                                   world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
 from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
@@ -51,6 +52,9 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('legs_min_fraction', -0.1, 'legs_min_fraction: expected 0..1'),
     ('legs_depth_tolerance_m', 0.0, 'legs_depth_tolerance_m: expected a number > 0'),
     ('legs_max_gap_m', -1.0, 'legs_max_gap_m: expected a number > 0'),
+    ('far_legs_min_height_m', 0.6, 'far_legs_min_height_m: expected 0 <= value < '
+     'min_point_height_m'),
+    ('far_legs_max_width_m', 0.0, 'far_legs_max_width_m: expected a number > 0'),
 ])
 def test_a_bad_people_parameter_names_itself(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -313,6 +317,45 @@ def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection()
     assert published == [0, 0, 1]
 
 
+def test_a_body_so_far_off_that_only_its_legs_show_is_found_and_a_radiator_is_not():
+    rig, transform, intrinsics = _rig_geometry()
+    # 5.6 m off the image's top edge is about 0.8 m above the floor: the legs' matches end
+    # below min_point_height_m (0.6 m). A radiator under the top edge, 6.4 m off.
+    legs_warm, legs_points, legs_pixels = _painted(rig, _legs(0.4, 5.6, top=0.58))
+    radiator = np.array([[x, 6.38, z] for x in np.linspace(-1.6, -0.3, 60)
+                         for z in np.linspace(0.15, 0.75, 25)])
+    hot_warm, hot_points, hot_pixels = _painted(rig, radiator)
+    centre = camera_centre_in_world(transform)
+    assert legs_pixels[:, 1].min() <= 5       # the legs reach the image's top edge
+    world = rectified_to_world(legs_points, transform)
+    disparity = 0.1 * 84.0 / legs_points[:, 2]
+    detections = detect_people(world, centre, disparity, legs_points[:, 2],
+                               pixels=legs_pixels, image_shape=(60, 80))
+    assert [(d.legs_only, d.cut_top, d.head_visible) for d in detections] == \
+        [(True, True, False)]
+    assert math.hypot(detections[0].x - 0.4, detections[0].y - 5.6) < 0.25
+    assert not detect_people(world, centre, disparity, legs_points[:, 2],
+                             config=PeopleConfig(far_legs_min_height_m=0.0),
+                             pixels=legs_pixels, image_shape=(60, 80))
+    # The same legs in the middle of the image (not cut by its top edge) are not a body.
+    lowered = legs_pixels + np.array([0.0, 25.0])
+    assert not detect_people(world, centre, disparity, legs_points[:, 2], pixels=lowered,
+                             image_shape=(60, 80))
+    # Standing on its legs: the legs are narrow, the radiator as wide as it is.
+    assert 0.0 < warm_run_width_m(legs_warm, (0.4, 5.6), transform, intrinsics) < 0.5
+    assert warm_run_width_m(hot_warm, (-1.0, 6.38), transform, intrinsics) > 1.0
+    assert math.isnan(warm_run_width_m(np.zeros((60, 80), dtype=bool), (0.4, 5.6),
+                                       transform, intrinsics))
+    counts = {}
+    marked = standing_on_legs(
+        [detections[0], Detection(-1.0, 6.38, 0.7, 30, 1.0, np.eye(2) * 1e-3,
+                                  head_visible=False, cut_top=True, legs_only=True)],
+        legs_warm | hot_warm, transform, intrinsics, np.vstack([legs_points, hot_points]),
+        np.vstack([legs_pixels, hot_pixels]), counts=counts)
+    assert [d.legs_seen for d in marked] == [True, False]
+    assert counts['cut_legs_wide'] == 1 and counts['cut_legs_seen'] == 1
+
+
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():
     rig, transform, intrinsics = _rig_geometry()
     warm, points, pixels = _painted(rig, _legs(-1.0, 4.3))
@@ -328,7 +371,8 @@ def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted()
                               transform, intrinsics, points, pixels, counts=counts)
     assert [d.legs_seen for d in marked] == [True, False, False]
     assert counts == {'cut_legs_checked': 2, 'cut_legs_seen': 1, 'cut_legs_out_of_image': 1,
-                      'cut_legs_fragment': 1, 'cut_legs_gap': 0, 'head_legs_checked': 0,
+                      'cut_legs_fragment': 1, 'cut_legs_gap': 0, 'cut_legs_wide': 0,
+                      'head_legs_checked': 0,
                       'head_legs_seen': 0}
     assert standing_on_legs([fragment], warm, transform, intrinsics, points,
                             pixels)[0].legs_seen

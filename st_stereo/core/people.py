@@ -48,6 +48,14 @@ class PeopleConfig:
 
     min_point_height_m: float = _field(
         0.6, 'points lower than this above the floor are not used (floor, chairs, desks), m')
+    far_legs_min_height_m: float = _field(
+        0.15, 'a body so far off that only its legs show (the image top edge below about '
+        '1 m, beyond about 5 m here): warm points from this height up to min_point_height_m, '
+        'away from every other detection, make a detection when they reach the top edge; '
+        'it must stand on its legs and be no wider than far_legs_max_width_m; 0: off, m')
+    far_legs_max_width_m: float = _field(
+        0.7, 'such a legs-only body is a person only if the warm run across its legs rows is '
+        'no wider than this (a radiator or a warm cabinet under the image top edge is), m')
     max_point_height_m: float = _field(
         2.3, 'points higher than this above the floor are not used (walls, lamps), m')
     min_head_height_m: float = _field(
@@ -140,7 +148,12 @@ class PeopleConfig:
         if not 0.0 <= self.legs_min_fraction <= 1.0:
             raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
                              f'{self.legs_min_fraction!r}')
-        for name in ('legs_depth_tolerance_m', 'legs_max_gap_m'):
+        if not (math.isfinite(self.far_legs_min_height_m) and
+                0.0 <= self.far_legs_min_height_m < self.min_point_height_m):
+            raise ValueError(f'people.far_legs_min_height_m: expected 0 <= value < '
+                             f'min_point_height_m ({self.min_point_height_m!r}), got '
+                             f'{self.far_legs_min_height_m!r}')
+        for name in ('legs_depth_tolerance_m', 'legs_max_gap_m', 'far_legs_max_width_m'):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f'people.{name}: expected a number > 0, got '
                                  f'{getattr(self, name)!r}')
@@ -226,6 +239,7 @@ class Detection:
     members: np.ndarray = None    # indices of its points in the points given to detect_people
     legs_seen: bool = False
     legs_under_head: bool = False  # not cut by the top edge, head high enough, on legs
+    legs_only: bool = False       # cut by the top edge so far off that only its legs show
 
 
 class WarmBackground:
@@ -423,6 +437,35 @@ def warm_column_gap_m(warm, floor_xy, transform, intrinsics, points, pixels, con
     return longest * 0.0125
 
 
+def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
+    """
+    Width of the warm run across a standing body's legs rows, metres (median over the rows).
+
+    On each image row of the legs' segment (``LEGS_HEIGHTS_M`` at ``floor_xy``,
+    ``vertical_segment_rows``) the warm pixel of the segment's window nearest its middle
+    is followed left and right while ``warm`` holds; its length in pixels times the row's
+    depth over ``fx`` is the width there. Two legs blurred together are about 0.3-0.5 m; a
+    radiator or a warm cabinet is as wide as it is. NaN when no row of the window holds a
+    warm pixel (or the segment is off the image).
+    """
+    config = config or PeopleConfig()
+    fx = intrinsics[0]
+    widths = []
+    for _, row, low, high, depth in vertical_segment_rows(
+            floor_xy, np.linspace(*LEGS_HEIGHTS_M, 9), transform, intrinsics, warm.shape,
+            config.person_radius_m / 2):
+        hot = np.flatnonzero(warm[row, low:high + 1]) + low
+        if not len(hot):
+            continue
+        start = end = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
+        while start > 0 and warm[row, start - 1]:
+            start -= 1
+        while end < warm.shape[1] - 1 and warm[row, end + 1]:
+            end += 1
+        widths.append((end - start + 1) * depth / fx)
+    return float(np.median(widths)) if widths else float('nan')
+
+
 def on_warm_legs(warm, detection, transform, intrinsics, points, pixels, config):
     """
     Whether a detection stands on warm legs at its depth, its warm column without a gap.
@@ -449,10 +492,12 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     fragment, left weak (cut, no legs). The price: of two far people standing closer than
     that, the weaker is published only once it walks ``min_travel_m`` or shows its head.
     A detection on legs whose warm column has a cool stretch longer than ``legs_max_gap_m``
-    (``warm_column_gap_m``) is two warm things, not one body, and gets none.
+    (``warm_column_gap_m``) is two warm things, not one body, and gets none; nor does a
+    legs-only one (``detect_people``) whose warm run across the legs is wider than
+    ``far_legs_max_width_m`` (``warm_run_width_m``: a radiator under the image's top edge).
     ``counts`` (a dict, optional) gains ``cut_legs_checked``, ``cut_legs_seen``,
-    ``cut_legs_out_of_image`` (the segment off the image), ``cut_legs_fragment`` and
-    ``cut_legs_gap``.
+    ``cut_legs_out_of_image`` (the segment off the image), ``cut_legs_fragment``,
+    ``cut_legs_gap`` and ``cut_legs_wide``.
 
     With ``confirm_on_legs``, a detection not cut by the top edge whose head is at least
     ``min_head_height_m`` high gets the same test and ``legs_under_head`` when it passes
@@ -462,7 +507,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('cut_legs_checked', 'cut_legs_seen', 'cut_legs_out_of_image',
-                'cut_legs_fragment', 'cut_legs_gap', 'head_legs_checked', 'head_legs_seen'):
+                'cut_legs_fragment', 'cut_legs_gap', 'cut_legs_wide', 'head_legs_checked',
+                'head_legs_seen'):
         counts.setdefault(key, 0)
     standing, out = [], []
     for detection in detections:
@@ -485,6 +531,10 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
             counts['cut_legs_checked'] += 1
             if math.isnan(fraction):
                 counts['cut_legs_out_of_image'] += 1
+            elif fraction >= config.legs_min_fraction and detection.legs_only and not \
+                    warm_run_width_m(warm, (detection.x, detection.y), transform, intrinsics,
+                                     config) <= config.far_legs_max_width_m:
+                counts['cut_legs_wide'] += 1    # (NaN: no warm row, no legs either)
             elif fraction >= config.legs_min_fraction and not warm_column_gap_m(
                     warm, (detection.x, detection.y), transform, intrinsics, points, pixels,
                     config) <= config.legs_max_gap_m:
@@ -552,43 +602,84 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         away, the head above the image; walking in or out at a side), kept without the
         ``min_head_height_m`` test, with ``head_visible`` False and its position pushed back
         by ``cut_body_offset_m`` (what the camera sees of a cut body is its front).
+        Farther still only the legs show, below ``min_point_height_m``: the points from
+        ``far_legs_min_height_m`` up to it, away from every detection above, make one more
+        pass, in which only a cluster cut by the top edge is kept (``legs_only``: it must
+        then stand on its legs, ``standing_on_legs``).
 
     Returns
     -------
     list of Detection
-        Strongest first.
+        Strongest first (the legs-only ones after the others).
 
     """
     config = config or PeopleConfig()
     points = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     centre = np.asarray(camera_centre, dtype=np.float64)
-    keep = (points[:, 2] >= config.min_point_height_m) & \
-        (points[:, 2] <= config.max_point_height_m) & np.isfinite(points).all(axis=1) & \
+    usable = np.isfinite(points).all(axis=1) & \
         (np.hypot(points[:, 0] - centre[0], points[:, 1] - centre[1]) <= config.max_range_m)
     if confidence is not None:
         # NaN: the matcher gave none (points2's confidence field) -- kept, weight 1.
-        keep &= ~(np.asarray(confidence, dtype=np.float64) < config.min_confidence)
-    sigma_depth = None
+        usable &= ~(np.asarray(confidence, dtype=np.float64) < config.min_confidence)
+    sigma_depth = np.full(len(points), np.nan)
     if disparity is not None and depth is not None:
         d, z = np.asarray(disparity, dtype=np.float64), np.asarray(depth, dtype=np.float64)
-        keep &= d > 0
+        usable &= d > 0
         sigma_depth = np.where(d > 0, z * config.disparity_sigma_px / np.maximum(d, 1e-9), 0)
-        sigma_depth = sigma_depth[keep]
-    weights = np.ones(int(keep.sum())) if confidence is None else \
-        np.nan_to_num(np.asarray(confidence, dtype=np.float64)[keep], nan=1.0)
-    indices = np.flatnonzero(keep)
-    at_top = at_side = np.zeros(int(keep.sum()), dtype=bool)
+    weights = np.ones(len(points)) if confidence is None else \
+        np.nan_to_num(np.asarray(confidence, dtype=np.float64), nan=1.0)
+    at_top = at_side = np.zeros(len(points), dtype=bool)
     if pixels is not None and image_shape is not None:
-        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)[keep]
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         at_top = px[:, 1] <= config.edge_px
         # The left edge of what both cameras see is the right image's: x - d.
-        left_x = px[:, 0] - (0.0 if disparity is None else np.asarray(disparity)[keep])
+        left_x = px[:, 0] - (0.0 if disparity is None else np.asarray(disparity))
         # The bottom edge too: a body cut there (a person under a rig looking straight down)
         # is not whole, though not a screen's shape either.
         at_side = (left_x <= config.edge_px) | \
             (px[:, 0] >= image_shape[1] - 1 - config.edge_px) | \
             (px[:, 1] >= image_shape[0] - 1 - config.edge_px)
-    points = points[keep]
+    evidence = _PointEvidence(points, weights, sigma_depth,
+                              None if depth is None else np.asarray(depth, dtype=np.float64),
+                              at_top, at_side, centre)
+    body = usable & (points[:, 2] >= config.min_point_height_m) & \
+        (points[:, 2] <= config.max_point_height_m)
+    detections = _cluster_detections(evidence, np.flatnonzero(body), config, legs_only=False)
+    if config.far_legs_min_height_m > 0:
+        low = usable & (points[:, 2] >= config.far_legs_min_height_m) & \
+            (points[:, 2] < config.min_point_height_m)
+        for detection in detections:
+            low &= np.hypot(points[:, 0] - detection.x, points[:, 1] - detection.y) > \
+                2 * config.person_radius_m
+        detections += _cluster_detections(evidence, np.flatnonzero(low), config,
+                                          legs_only=True)
+    return detections
+
+
+@dataclasses.dataclass
+class _PointEvidence:
+    """Per-point arrays ``detect_people`` clusters (all of the caller's points)."""
+
+    points: np.ndarray
+    weights: np.ndarray
+    sigma_depth: np.ndarray       # NaN without disparity and depth
+    depth: np.ndarray             # None without depth
+    at_top: np.ndarray
+    at_side: np.ndarray
+    centre: np.ndarray
+
+
+def _cluster_detections(evidence, indices, config, legs_only):
+    """
+    Return the detections of the points ``indices`` (``detect_people``), one per peak.
+
+    ``legs_only``: only clusters cut by the top edge are kept, marked ``legs_only`` (their
+    height is that of the legs' tops, no head).
+    """
+    points = evidence.points[indices]
+    at_top, at_side = evidence.at_top[indices], evidence.at_side[indices]
+    weights, sigma_depth = evidence.weights[indices], evidence.sigma_depth[indices]
+    centre = evidence.centre
     detections, taken = [], np.zeros(len(points), dtype=bool)
     for peak in occupancy_peaks(points[:, :2], config):
         near = (~taken) & (np.hypot(*(points[:, :2] - peak).T) <= config.person_radius_m)
@@ -602,6 +693,8 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
             upper = near
         # Cut by the image's edge: a fifth of the upper body at it (one arm is not enough).
         cut_top = bool(np.mean(at_top[upper]) >= 0.2)
+        if legs_only and not cut_top:
+            continue
         head_visible = not cut_top and bool(np.mean(at_side[upper]) < 0.2)
         if head_visible and head < config.min_head_height_m:
             continue
@@ -610,19 +703,21 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         xy = np.median(upper[:, :2], axis=0)
         away = xy - centre[:2]
         away /= max(float(np.hypot(*away)), 1e-9)
-        xy = xy + (config.cut_body_offset_m if cut_top else config.body_half_depth_m) * away
+        xy = xy + (0.0 if legs_only else config.cut_body_offset_m if cut_top else
+                   config.body_half_depth_m) * away
         spread = np.cov(upper[:, :2].T) if len(upper) > 2 else np.eye(2) * 0.01
         covariance = spread / len(upper)
-        if sigma_depth is not None:
+        if np.isfinite(sigma_depth[near]).all():
             ray = member - centre
             horizontal = np.hypot(ray[:, 0], ray[:, 1]) / np.linalg.norm(ray, axis=1)
             sigma = float(np.median(sigma_depth[near] * horizontal))
             covariance = covariance + (sigma ** 2 / len(upper)) * np.outer(away, away)
         strength = float(np.mean(weights[near])) * min(1.0, near.sum() / (3 * config.min_points))
-        spread_z = float(np.std(depth[keep][near])) if depth is not None else float('nan')
+        spread_z = float(np.std(evidence.depth[indices][near])) \
+            if evidence.depth is not None else float('nan')
         detections.append(Detection(float(xy[0]), float(xy[1]), head, int(near.sum()),
                                     strength, covariance, head_visible, cut_top, spread_z,
-                                    indices[near]))
+                                    indices[near], legs_only=legs_only))
     return detections
 
 

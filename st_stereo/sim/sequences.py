@@ -317,6 +317,16 @@ def standard_sequences():
                      speed=0.9), sitter),
             duration_s=16.0, rig=realistic_rig(), ffc_at_s=(9.0, 200.0), right_phase_s=0.033,
             right_drift_ppm=-50.0),
+        # Made 2026-12-06 to study bodies standing far off with the head above the image (the
+        # people stage's largest miss held out) without looking at the held-out sequences:
+        # a tuning sequence of the people stage.
+        'far_standing': SequenceSpec(
+            'far_standing', 'one person walks away to stand 4.8 m off, another stands 5 m off '
+            'all along (both heads above the image)',
+            (_walker([(0.3, 2.9), (-1.0, 4.8)], tall, speed=0.9),
+             PersonScript((Keyframe(0.0, 0.4, 5.1), Keyframe(8.0, 0.4, 5.1)), short,
+                          heading_rad=math.pi * 1.1)),
+            duration_s=8.0, rig=realistic_rig(), right_phase_s=-0.035, right_drift_ppm=-50.0),
         # Held out: never used to choose a parameter or a mechanism (docs/results.md).
         'meeting_room': SequenceSpec(
             'meeting_room', 'held out: another room, three people (two walk, one stands)',
