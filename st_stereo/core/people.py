@@ -19,12 +19,15 @@ The stages, each a pure function or a small state machine fed one pair at a time
    (``sigma_Z = Z sigma_d / d``: from ``Z = f B / d``, ``dZ / dd = -Z / d``).
    A body cut by the image's top edge (far off, the head above the image) looks like a warm
    screen on a desk; ``legs_fraction`` tells them apart by what stands below it: warm legs
-   at the body's depth (matched points on them) or a cool desk.
+   at the body's depth (matched points on them) or a cool desk. Farther still only the legs
+   show: a second pass over the lower points finds them where they reach the top edge
+   (``far_legs_min_height_m``), and ``warm_run_width_m`` tells legs from a radiator.
 4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
    assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
-   never repeat, a track confirmed after ``min_hits`` detections, kept without detections for
-   ``max_coast_s`` (short occlusions) and then ended; one not confirmed yet ends after
-   ``unconfirmed_coast_s`` without detections.
+   never repeat, a track confirmed after ``min_hits`` detections (or at once when its first
+   stands on warm legs with its head high enough, ``confirm_on_legs``), kept without
+   detections for ``max_coast_s`` (short occlusions) and then ended; one not confirmed yet
+   ends after ``unconfirmed_coast_s`` without detections.
 """
 
 import dataclasses
