@@ -13,9 +13,10 @@ import types
 
 import numpy as np
 import pytest
-from st_stereo.core.people import (camera_centre_in_world, detect_people, Detection,
-                                   legs_fraction, PeopleConfig, PeopleEstimator, PeopleTracker,
-                                   rectified_to_world, standing_on_legs, vertical_segment_rows,
+from st_stereo.core.people import (detect_people, Detection,
+                                   legs_fraction, legs_only_bodies, PeopleConfig, PeopleEstimator,
+                                   PeopleTracker, rectified_to_world, silhouette_reaches_top,
+                                   standing_on_legs, top_edge_height_m, vertical_segment_rows,
                                    warm_column_gap_m, warm_run_width_m, WarmBackground,
                                    world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
@@ -52,9 +53,11 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('legs_min_fraction', -0.1, 'legs_min_fraction: expected 0..1'),
     ('legs_depth_tolerance_m', 0.0, 'legs_depth_tolerance_m: expected a number > 0'),
     ('legs_max_gap_m', -1.0, 'legs_max_gap_m: expected a number > 0'),
-    ('far_legs_min_height_m', 0.6, 'far_legs_min_height_m: expected 0 <= value < '
-     'min_point_height_m'),
+    ('far_legs_min_height_m', 0.6, r'far_legs_min_height_m: expected 0 \(off\) or a value '
+     r'below min_point_height_m \(0.6\)'),
     ('far_legs_max_width_m', 0.0, 'far_legs_max_width_m: expected a number > 0'),
+    ('confirm_on_legs', 'false', "confirm_on_legs: expected true or false, got 'false'"),
+    ('require_warm', 1, 'require_warm: expected true or false, got 1'),
 ])
 def test_a_bad_people_parameter_names_itself(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -310,6 +313,13 @@ def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection()
         tracker = PeopleTracker(config)
         published = [len(tracker.update([detection], t)) for t in (0.0, 0.115)]
         assert published == [first, 1], (config, detection)
+    # Not beside a published track (a body's fragment thrown back by wrong disparities
+    # stands on the body's own legs): it waits for min_hits too.
+    tracker = PeopleTracker()
+    for t in (0.0, 0.115):
+        tracker.update([whole(-0.6, 2.8, 1.55)], t)
+    fragment = dataclasses.replace(marked[0], x=-0.6, y=3.4)
+    assert len(tracker.update([whole(-0.6, 2.8, 1.55), fragment], 0.23)) == 1
     # Only a track's first detection: one that starts without legs waits for min_hits.
     tracker = PeopleTracker(PeopleConfig(min_hits=3))
     published = [len(tracker.update([d], t)) for d, t in
@@ -317,43 +327,130 @@ def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection()
     assert published == [0, 0, 1]
 
 
+def test_the_legs_only_pass_can_be_turned_off_and_min_point_height_then_goes_low():
+    assert PeopleConfig(min_point_height_m=0.0, far_legs_min_height_m=0.0)
+    with pytest.raises(ValueError, match='far_legs_min_height_m: expected 0 .off. or a value'):
+        PeopleConfig(min_point_height_m=0.1)
+
+
+def _box(x0, x1, y, z0, z1, nx=30, nz=25):
+    """World samples of a vertical warm rectangle facing the rig."""
+    return np.array([[x, y, z] for x in np.linspace(x0, x1, nx)
+                     for z in np.linspace(z0, z1, nz)])
+
+
+def _far_scene(surfaces, pairs=4, config=None):
+    """
+    Run painted surfaces through a PeopleEstimator; return it and the per-pair outputs.
+
+    The warm image is the painted mask (400 counts over a flat room); the points are the
+    painted samples at their true depth (``_painted``), except those in the top four rows,
+    where no feature is found (half a POC window).
+    """
+    rig, transform, intrinsics = _rig_geometry()
+    warm, points, pixels = _painted(rig, surfaces)
+    found = pixels[:, 1] >= 4.5
+    image = np.full((60, 80), 8000.0)
+    image[warm] += 400.0
+    estimator = PeopleEstimator(transform, config)
+    # A pair every 0.115 s, then every second (a long run: the background's minutes).
+    frames = [estimator.process(0.115 * k if k < 10 else k - 8.85, points[found],
+                                pixels[found, 0], pixels[found, 1],
+                                0.1 * 84.0 / points[found, 2], left_image=image,
+                                intrinsics=intrinsics) for k in range(pairs)]
+    return estimator, frames
+
+
 def test_a_body_so_far_off_that_only_its_legs_show_is_found_and_a_radiator_is_not():
     rig, transform, intrinsics = _rig_geometry()
-    # 5.6 m off the image's top edge is about 0.8 m above the floor: the legs' matches end
-    # below min_point_height_m (0.6 m). A radiator under the top edge, 6.4 m off.
-    legs_warm, legs_points, legs_pixels = _painted(rig, _legs(0.4, 5.6, top=0.58))
-    radiator = np.array([[x, 6.38, z] for x in np.linspace(-1.6, -0.3, 60)
-                         for z in np.linspace(0.15, 0.75, 25)])
-    hot_warm, hot_points, hot_pixels = _painted(rig, radiator)
-    centre = camera_centre_in_world(transform)
-    assert legs_pixels[:, 1].min() <= 5       # the legs reach the image's top edge
-    world = rectified_to_world(legs_points, transform)
-    disparity = 0.1 * 84.0 / legs_points[:, 2]
-    detections = detect_people(world, centre, disparity, legs_points[:, 2],
-                               pixels=legs_pixels, image_shape=(60, 80))
-    assert [(d.legs_only, d.cut_top, d.head_visible) for d in detections] == \
-        [(True, True, False)]
-    assert math.hypot(detections[0].x - 0.4, detections[0].y - 5.6) < 0.25
-    assert not detect_people(world, centre, disparity, legs_points[:, 2],
-                             config=PeopleConfig(far_legs_min_height_m=0.0),
-                             pixels=legs_pixels, image_shape=(60, 80))
-    # The same legs in the middle of the image (not cut by its top edge) are not a body.
-    lowered = legs_pixels + np.array([0.0, 25.0])
-    assert not detect_people(world, centre, disparity, legs_points[:, 2], pixels=lowered,
-                             image_shape=(60, 80))
-    # Standing on its legs: the legs are narrow, the radiator as wide as it is.
+    # 5.6 m off the image's top edge is about 0.8 m above the floor: the body rises out of the
+    # image and its matches end below min_point_height_m (0.6 m).
+    body = _legs(0.4, 5.6, top=1.2)
+    estimator, frames = _far_scene(body)
+    assert estimator.counts['legs_only_detections'] == 4
+    published = frames[-1].tracks
+    assert len(published) == 1 and published[0].detection.legs_only
+    assert math.hypot(published[0].state[0] - 0.4, published[0].state[1] - 5.6) < 0.25
+    # Its height: where the top edge crosses it (the body goes on above), not its legs' top.
+    edge = top_edge_height_m((0.4, 5.6), transform, intrinsics)
+    assert 0.7 < edge < 0.9 and published[0].head_height == pytest.approx(edge, abs=0.05)
+    assert not published[0].head_visible
+    # Its pixels stay learnable by the background (a panel radiator looks the same, below).
+    assert not estimator.protect.any()
+    # Off: nothing.
+    assert not _far_scene(body, config=PeopleConfig(far_legs_min_height_m=0.0))[1][-1].tracks
+    # Low warm things far off, never a person: a dog or a fan heater wholly in view (cool rows
+    # above them), a 1.3 m radiator rising out of the image, one running off its side.
+    for name, surfaces, count in (
+            ('dog', _box(0.25, 0.55, 6.0, 0.05, 0.5, 12), 'legs_only_below_top'),
+            ('heater', _box(-0.9, -0.6, 5.8, 0.05, 0.45, 12), 'legs_only_below_top'),
+            ('radiator', _box(-1.6, -0.3, 6.0, 0.15, 0.9, 60), 'cut_legs_wide'),
+            ('radiator at the side', _box(2.2, 3.7, 6.0, 0.15, 0.9, 60), 'cut_legs_wide')):
+        estimator, frames = _far_scene(surfaces)
+        assert not any(frame.tracks for frame in frames), name
+        assert estimator.counts[count] >= 1, (name, estimator.counts)
+    # What it cannot tell: a 0.5 m panel radiator rising out of the image stands like legs.
+    # Its pixels are not kept from the background (as a seated person's are), so it fades
+    # into it within minutes (absorb_time_s 300 s, the 400 counts below 100 after 416 s).
+    estimator, frames = _far_scene(_box(-1.0, -0.5, 6.0, 0.15, 0.9, 20), pairs=600)
+    assert frames[3].tracks and not frames[-1].tracks
+    # Beyond where the top edge crosses 0.5 m, the legs are not all in view: not checked.
+    far = _legs(0.0, 6.8, top=1.2)
+    far_warm, _, far_pixels = _painted(rig, far)
+    assert top_edge_height_m((0.0, 6.8), transform, intrinsics) < 0.5
+    counts = {}
+    assert not legs_only_bodies([Detection(0.0, 6.8, 0.4, 20, 1.0, np.eye(2) * 1e-3, False,
+                                           True, members=np.arange(len(far_pixels)),
+                                           legs_only=True)],
+                                far_warm, transform, intrinsics, far_pixels, counts)
+    assert counts == {'legs_only_detections': 1, 'legs_only_below_top': 0,
+                      'legs_only_too_far': 1}
+    # Without the camera matrix nothing tells legs from a low warm thing: none, counted.
+    warm, points, pixels = _painted(rig, body)
+    image = np.full((60, 80), 8000.0)
+    image[warm] += 400.0
+    found = pixels[:, 1] >= 4.5
+    estimator = PeopleEstimator(transform)
+    frame = estimator.process(0.0, points[found], pixels[found, 0], pixels[found, 1],
+                              left_image=image)
+    assert estimator.counts['legs_only_not_checked'] == 1 and not frame.detections
+    # The legs are narrow, a radiator as wide as it is, one off the image's side unknown.
+    legs_warm = _painted(rig, _legs(0.4, 5.6, top=0.58))[0]
     assert 0.0 < warm_run_width_m(legs_warm, (0.4, 5.6), transform, intrinsics) < 0.5
+    hot_warm = _painted(rig, _box(-1.6, -0.3, 6.38, 0.15, 0.75, 60))[0]
     assert warm_run_width_m(hot_warm, (-1.0, 6.38), transform, intrinsics) > 1.0
+    side_warm = _painted(rig, _box(2.4, 3.7, 6.38, 0.15, 0.75, 60))[0]
+    assert math.isnan(warm_run_width_m(side_warm, (2.6, 6.38), transform, intrinsics))
     assert math.isnan(warm_run_width_m(np.zeros((60, 80), dtype=bool), (0.4, 5.6),
                                        transform, intrinsics))
-    counts = {}
-    marked = standing_on_legs(
-        [detections[0], Detection(-1.0, 6.38, 0.7, 30, 1.0, np.eye(2) * 1e-3,
-                                  head_visible=False, cut_top=True, legs_only=True)],
-        legs_warm | hot_warm, transform, intrinsics, np.vstack([legs_points, hot_points]),
-        np.vstack([legs_pixels, hot_pixels]), counts=counts)
-    assert [d.legs_seen for d in marked] == [True, False]
-    assert counts['cut_legs_wide'] == 1 and counts['cut_legs_seen'] == 1
+
+
+def test_the_top_edge_height_is_where_the_simulator_projects_the_top_row():
+    rig, transform, intrinsics = _rig_geometry()
+    p1 = rig.rectification()[2]
+    for y in (2.0, 3.5, 5.1, 6.4):
+        height = top_edge_height_m((0.3, y), transform, intrinsics)
+        camera = rig.to_rectified_left(np.array([[0.3, y, height], [0.3, y, height + 0.01]]))
+        rows = p1[1, 1] * camera[:, 1] / camera[:, 2] + p1[1, 2]
+        assert rows[0] >= -0.5 > rows[1], (y, height, rows)
+    # Behind the rig, or below the image near it: the top edge does not cross there.
+    assert math.isnan(top_edge_height_m((0.0, -2.0), transform, intrinsics))
+
+
+def test_a_silhouette_reaching_the_top_row_is_one_rising_out_of_the_image():
+    warm = np.zeros((60, 80), dtype=bool)
+    warm[0:25, 30:37] = True                    # a body rising out of the image
+    warm[0:8, 50:60] = True                     # something else at the top, apart
+    points = np.array([[31.0, 12.0], [35.0, 18.0], [33.0, 24.0]])
+    assert silhouette_reaches_top(warm, points)
+    lower = warm.copy()
+    lower[0:3, 30:37] = False                   # its top in view, cool rows above
+    assert not silhouette_reaches_top(lower, points)
+    # Joined to a warm region on row 0 only beside its points' columns: not its own top.
+    bridge = lower.copy()
+    bridge[3, 37:50] = True
+    assert not silhouette_reaches_top(bridge, points)
+    assert not silhouette_reaches_top(warm, np.zeros((0, 2)))
 
 
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():

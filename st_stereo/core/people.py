@@ -52,13 +52,15 @@ class PeopleConfig:
     min_point_height_m: float = _field(
         0.6, 'points lower than this above the floor are not used (floor, chairs, desks), m')
     far_legs_min_height_m: float = _field(
-        0.15, 'a body so far off that only its legs show (the image top edge below about '
-        '1 m, beyond about 5 m here): warm points from this height up to min_point_height_m, '
-        'away from every other detection, make a detection when they reach the top edge; '
-        'it must stand on its legs and be no wider than far_legs_max_width_m; 0: off, m')
+        0.15, 'a body so far off that only its legs show (the image top edge 0.5-1 m above '
+        'the floor there: 5.1-6.4 m away for a rig 2.9 m high looking 40 deg down): warm '
+        'points from this height up to min_point_height_m, away from every other detection, '
+        'make a detection when their warm region reaches the top row; it must stand on its '
+        'legs, no wider than far_legs_max_width_m; 0: off (needs the image and camera '
+        'matrix), m')
     far_legs_max_width_m: float = _field(
         0.7, 'such a legs-only body is a person only if the warm run across its legs rows is '
-        'no wider than this (a radiator or a warm cabinet under the image top edge is), m')
+        'no wider than this and does not run off the image side (a radiator), m')
     max_point_height_m: float = _field(
         2.3, 'points higher than this above the floor are not used (walls, lamps), m')
     min_head_height_m: float = _field(
@@ -105,7 +107,8 @@ class PeopleConfig:
     confirm_on_legs: bool = _field(
         True, 'a new track is published at its first detection, not after min_hits, when that '
         'one is not cut by the top edge, its head is high enough and it stands on warm legs '
-        'at its depth as a body cut by the top edge must (legs_min_fraction, legs_max_gap_m)')
+        'at its depth as a body cut by the top edge must (legs_min_fraction, legs_max_gap_m), '
+        'and no published track is within gate_m of it')
     min_travel_m: float = _field(
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
@@ -152,10 +155,15 @@ class PeopleConfig:
             raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
                              f'{self.legs_min_fraction!r}')
         if not (math.isfinite(self.far_legs_min_height_m) and
-                0.0 <= self.far_legs_min_height_m < self.min_point_height_m):
-            raise ValueError(f'people.far_legs_min_height_m: expected 0 <= value < '
+                (self.far_legs_min_height_m == 0.0 or
+                 0.0 < self.far_legs_min_height_m < self.min_point_height_m)):
+            raise ValueError(f'people.far_legs_min_height_m: expected 0 (off) or a value below '
                              f'min_point_height_m ({self.min_point_height_m!r}), got '
                              f'{self.far_legs_min_height_m!r}')
+        for field in dataclasses.fields(self):
+            if field.type in (bool, 'bool') and not isinstance(getattr(self, field.name), bool):
+                raise ValueError(f'people.{field.name}: expected true or false, got '
+                                 f'{getattr(self, field.name)!r}')
         for name in ('legs_depth_tolerance_m', 'legs_max_gap_m', 'far_legs_max_width_m'):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f'people.{name}: expected a number > 0, got '
@@ -449,7 +457,9 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
     is followed left and right while ``warm`` holds; its length in pixels times the row's
     depth over ``fx`` is the width there. Two legs blurred together are about 0.3-0.5 m; a
     radiator or a warm cabinet is as wide as it is. NaN when no row of the window holds a
-    warm pixel (or the segment is off the image).
+    warm pixel (or the segment is off the image), and when a run reaches the image's side:
+    what lies beyond it is not seen, so the width is not known (a wide radiator running off
+    the image measures as narrow as legs).
     """
     config = config or PeopleConfig()
     fx = intrinsics[0]
@@ -465,8 +475,86 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
             start -= 1
         while end < warm.shape[1] - 1 and warm[row, end + 1]:
             end += 1
+        if start == 0 or end == warm.shape[1] - 1:
+            return float('nan')
         widths.append((end - start + 1) * depth / fx)
     return float(np.median(widths)) if widths else float('nan')
+
+
+def top_edge_height_m(floor_xy, transform, intrinsics):
+    """
+    Height above the floor at which the image's top edge crosses a vertical at ``floor_xy``.
+
+    The vertical's points 0-3 m high (1 cm apart) go into the rectified left frame (the
+    inverse of ``transform``) and onto the image rows (``v = fy Y / Z + cy``); the highest one
+    on or below the top edge (``v >= -0.5``) is returned when the next one is above it. NaN
+    when the top edge does not cross the vertical between 0 and 3 m (near the rig it passes
+    above 3 m; behind the camera nothing is seen).
+    """
+    rotation, translation = transform
+    _, fy, _, cy = intrinsics
+    heights = np.arange(0.0, 3.0 + 1e-9, 0.01)
+    world = np.column_stack([np.full(len(heights), floor_xy[0]),
+                             np.full(len(heights), floor_xy[1]), heights])
+    camera = (world - translation) @ rotation
+    ahead = camera[:, 2] > 0
+    rows = np.full(len(heights), -np.inf)
+    rows[ahead] = fy * camera[ahead, 1] / camera[ahead, 2] + cy
+    crossing = np.flatnonzero((rows[:-1] >= -0.5) & (rows[1:] < -0.5) & ahead[1:])
+    return float(heights[crossing.max()]) if len(crossing) else float('nan')
+
+
+def silhouette_reaches_top(warm, pixels):
+    """
+    Whether the warm region holding a detection's points has a pixel on the image's top row.
+
+    ``pixels`` (n, 2) are the detection's points' left pixels; the 8-connected warm regions
+    of ``warm`` (not dilated) holding any of them must reach row 0 within the columns the
+    points span: a body rising out of the image does, a low warm thing wholly in view (a pet,
+    a heater, a radiator under a higher top edge) has cool rows above it.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    rows, cols, inside = pixel_indices(warm.shape, pixels[:, 0], pixels[:, 1])
+    if not inside.any():
+        return False
+    labels, _ = ndimage.label(warm, structure=np.ones((3, 3), dtype=bool))
+    held = np.unique(labels[rows[inside], cols[inside]])
+    held = held[held > 0]
+    low, high = int(cols[inside].min()), int(cols[inside].max())
+    return bool(np.isin(labels[0, low:high + 1], held).any())
+
+
+def legs_only_bodies(detections, warm, transform, intrinsics, pixels, counts=None):
+    """
+    Keep the legs-only detections (``detect_people``) that can be a body rising out of view.
+
+    A legs-only detection is kept when the warm region of its points reaches the image's top
+    row (``silhouette_reaches_top``) and the top edge crosses it at least ``LEGS_HEIGHTS_M``
+    high (the whole legs' segment in view: farther, a low warm thing reaches the edge as
+    legs do); its head height becomes that crossing's height when higher than its points'
+    top (a lower bound: the body goes on above the image). ``pixels``: the left pixels of
+    the points the detections' ``members`` index. Other detections pass unchanged.
+    ``counts`` gains ``legs_only_detections``, ``legs_only_below_top`` and
+    ``legs_only_too_far``.
+    """
+    counts = {} if counts is None else counts
+    for key in ('legs_only_detections', 'legs_only_below_top', 'legs_only_too_far'):
+        counts.setdefault(key, 0)
+    out = []
+    for detection in detections:
+        if detection.legs_only:
+            counts['legs_only_detections'] += 1
+            edge = top_edge_height_m((detection.x, detection.y), transform, intrinsics)
+            if not edge >= LEGS_HEIGHTS_M[1]:
+                counts['legs_only_too_far'] += 1
+                continue
+            if not silhouette_reaches_top(warm, pixels[detection.members]):
+                counts['legs_only_below_top'] += 1
+                continue
+            detection = dataclasses.replace(detection,
+                                            head_height=max(detection.head_height, edge))
+        out.append(detection)
+    return out
 
 
 def on_warm_legs(warm, detection, transform, intrinsics, points, pixels, config):
@@ -484,7 +572,7 @@ def on_warm_legs(warm, detection, transform, intrinsics, points, pixels, config)
 
 
 def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, config=None,
-                     counts=None):
+                     counts=None, tracked_xy=()):
     """
     Return the detections, those cut by the top edge on warm legs marked ``legs_seen``.
 
@@ -505,7 +593,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     With ``confirm_on_legs``, a detection not cut by the top edge whose head is at least
     ``min_head_height_m`` high gets the same test and ``legs_under_head`` when it passes
     (``head_legs_checked``, ``head_legs_seen``): a track starting on it is published at
-    once (``PeopleTracker``).
+    once (``PeopleTracker``). Only one farther than ``gate_m`` from every ``tracked_xy``
+    (the tracks' predicted floor positions) is tested: one nearer continues a track.
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
@@ -517,7 +606,9 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     for detection in detections:
         if not detection.cut_top:
             if config.confirm_on_legs and \
-                    detection.head_height >= config.min_head_height_m:
+                    detection.head_height >= config.min_head_height_m and \
+                    all(math.hypot(detection.x - x, detection.y - y) > config.gate_m
+                        for x, y in tracked_xy):
                 counts['head_legs_checked'] += 1
                 if on_warm_legs(warm, detection, transform, intrinsics, points, pixels,
                                 config):
@@ -537,7 +628,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
             elif fraction >= config.legs_min_fraction and detection.legs_only and not \
                     warm_run_width_m(warm, (detection.x, detection.y), transform, intrinsics,
                                      config) <= config.far_legs_max_width_m:
-                counts['cut_legs_wide'] += 1    # (NaN: no warm row, no legs either)
+                # (NaN: no warm row, or a run off the image's side: the width is unknown)
+                counts['cut_legs_wide'] += 1
             elif fraction >= config.legs_min_fraction and not warm_column_gap_m(
                     warm, (detection.x, detection.y), transform, intrinsics, points, pixels,
                     config) <= config.legs_max_gap_m:
@@ -608,7 +700,8 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         Farther still only the legs show, below ``min_point_height_m``: the points from
         ``far_legs_min_height_m`` up to it, away from every detection above, make one more
         pass, in which only a cluster cut by the top edge is kept (``legs_only``: it must
-        then stand on its legs, ``standing_on_legs``).
+        then rise out of the image, ``legs_only_bodies``, and stand on its legs,
+        ``standing_on_legs``).
 
     Returns
     -------
@@ -624,7 +717,7 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
     if confidence is not None:
         # NaN: the matcher gave none (points2's confidence field) -- kept, weight 1.
         usable &= ~(np.asarray(confidence, dtype=np.float64) < config.min_confidence)
-    sigma_depth = np.full(len(points), np.nan)
+    sigma_depth = None
     if disparity is not None and depth is not None:
         d, z = np.asarray(disparity, dtype=np.float64), np.asarray(depth, dtype=np.float64)
         usable &= d > 0
@@ -654,8 +747,9 @@ def detect_people(points_world, camera_centre, disparity=None, depth=None, confi
         for detection in detections:
             low &= np.hypot(points[:, 0] - detection.x, points[:, 1] - detection.y) > \
                 2 * config.person_radius_m
-        detections += _cluster_detections(evidence, np.flatnonzero(low), config,
-                                          legs_only=True)
+        if (low & at_top).any():        # (a cluster without a point at the top is not kept)
+            detections += _cluster_detections(evidence, np.flatnonzero(low), config,
+                                              legs_only=True)
     return detections
 
 
@@ -665,7 +759,7 @@ class _PointEvidence:
 
     points: np.ndarray
     weights: np.ndarray
-    sigma_depth: np.ndarray       # NaN without disparity and depth
+    sigma_depth: np.ndarray       # None without disparity and depth
     depth: np.ndarray             # None without depth
     at_top: np.ndarray
     at_side: np.ndarray
@@ -681,7 +775,8 @@ def _cluster_detections(evidence, indices, config, legs_only):
     """
     points = evidence.points[indices]
     at_top, at_side = evidence.at_top[indices], evidence.at_side[indices]
-    weights, sigma_depth = evidence.weights[indices], evidence.sigma_depth[indices]
+    weights = evidence.weights[indices]
+    sigma_depth = None if evidence.sigma_depth is None else evidence.sigma_depth[indices]
     centre = evidence.centre
     detections, taken = [], np.zeros(len(points), dtype=bool)
     for peak in occupancy_peaks(points[:, :2], config):
@@ -710,7 +805,7 @@ def _cluster_detections(evidence, indices, config, legs_only):
                    config.body_half_depth_m) * away
         spread = np.cov(upper[:, :2].T) if len(upper) > 2 else np.eye(2) * 0.01
         covariance = spread / len(upper)
-        if np.isfinite(sigma_depth[near]).all():
+        if sigma_depth is not None:
             ray = member - centre
             horizontal = np.hypot(ray[:, 0], ray[:, 1]) / np.linalg.norm(ray, axis=1)
             sigma = float(np.median(sigma_depth[near] * horizontal))
@@ -829,6 +924,12 @@ class PeopleTracker:
             return sum(track.legs_recent) >= self.config.min_hits
         return detection.head_height >= self.config.min_head_height_m
 
+    def predicted_xy(self, stamp_s):
+        """Return each track's floor position predicted to ``stamp_s`` (no state change)."""
+        dt = 0.0 if self.stamp_s is None else max(0.0, stamp_s - self.stamp_s)
+        return [(t.state[0] + dt * t.state[2], t.state[1] + dt * t.state[3])
+                for t in self.tracks]
+
     def gate(self, track):
         """
         Return how far a detection may be from the track's prediction.
@@ -913,7 +1014,9 @@ class PeopleTracker:
         self.tracks = alive
         for track in self.tracks:
             on_legs = self.config.confirm_on_legs and track.hits == 1 and \
-                track.detection is not None and track.detection.legs_under_head
+                track.detection is not None and track.detection.legs_under_head and \
+                not any(other.confirmed and math.hypot(*(other.state[:2] - track.state[:2]))
+                        <= self.config.gate_m for other in self.tracks)
             if not track.confirmed and track.updated and \
                     (track.hits >= self.config.min_hits or on_legs) and \
                     (track.seen_as_person or track.travel_m >= self.config.min_travel_m):
@@ -960,7 +1063,10 @@ class PeopleEstimator:
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
                        'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0,
                        'cut_legs_checked': 0, 'cut_legs_seen': 0, 'cut_legs_out_of_image': 0,
-                       'cut_legs_fragment': 0, 'cut_legs_gap': 0, 'cut_legs_not_checked': 0}
+                       'cut_legs_fragment': 0, 'cut_legs_gap': 0, 'cut_legs_not_checked': 0,
+                       'cut_legs_wide': 0, 'head_legs_checked': 0, 'head_legs_seen': 0,
+                       'legs_only_detections': 0, 'legs_only_below_top': 0,
+                       'legs_only_too_far': 0, 'legs_only_not_checked': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -1003,10 +1109,17 @@ class PeopleEstimator:
             points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
             self.config, np.column_stack([x_left, y])[keep], image_shape)
         self.counts['detections'] += len(detections)
+        if warm is not None and intrinsics is not None:
+            detections = legs_only_bodies(detections, warm, self.transform, intrinsics,
+                                          np.column_stack([x_left, y])[keep], self.counts)
+        else:       # nothing tells a far body's legs from a low warm thing
+            self.counts['legs_only_not_checked'] += sum(d.legs_only for d in detections)
+            detections = [d for d in detections if not d.legs_only]
         if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
             detections = standing_on_legs(detections, warm, self.transform, intrinsics,
                                           points[keep], np.column_stack([x_left, y])[keep],
-                                          self.config, self.counts)
+                                          self.config, self.counts,
+                                          self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
         tracks = self.tracker.update(detections, stamp_s)
@@ -1020,8 +1133,11 @@ class PeopleEstimator:
             return None
         mask = np.zeros(image_shape, dtype=bool)
         for track in tracks:
+            # A legs-only body's pixels stay learnable: a narrow warm thing standing far off
+            # (a panel radiator) then fades into the background in minutes, as a far person
+            # standing still that long does too.
             if track.updated and track.detection is not None and \
-                    track.detection.members is not None:
+                    track.detection.members is not None and not track.detection.legs_only:
                 members = used[track.detection.members]
                 rows, cols, inside = pixel_indices(image_shape, x_left[members], y[members])
                 mask[rows[inside], cols[inside]] = True
