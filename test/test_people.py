@@ -320,6 +320,10 @@ def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection()
         tracker.update([whole(-0.6, 2.8, 1.55)], t)
     fragment = dataclasses.replace(marked[0], x=-0.6, y=3.4)
     assert len(tracker.update([whole(-0.6, 2.8, 1.55), fragment], 0.23)) == 1
+    # Time going back (a replay restarting): no track is predicted, the tracker starts over
+    # and a body on its legs is published at once again.
+    assert tracker.predicted_xy(0.5) and tracker.predicted_xy(0.0) == []
+    assert len(tracker.update([marked[0]], 0.0)) == 1
     # Only a track's first detection: one that starts without legs waits for min_hits.
     tracker = PeopleTracker(PeopleConfig(min_hits=3))
     published = [len(tracker.update([d], t)) for d, t in
@@ -329,6 +333,7 @@ def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection()
 
 def test_the_legs_only_pass_can_be_turned_off_and_min_point_height_then_goes_low():
     assert PeopleConfig(min_point_height_m=0.0, far_legs_min_height_m=0.0)
+    assert PeopleConfig(confirm_on_legs=np.False_).confirm_on_legs == np.False_
     with pytest.raises(ValueError, match='far_legs_min_height_m: expected 0 .off. or a value'):
         PeopleConfig(min_point_height_m=0.1)
 

@@ -53,7 +53,7 @@ class PeopleConfig:
         0.6, 'points lower than this above the floor are not used (floor, chairs, desks), m')
     far_legs_min_height_m: float = _field(
         0.15, 'a body so far off that only its legs show (the image top edge 0.5-1 m above '
-        'the floor there: 5.1-6.4 m away for a rig 2.9 m high looking 40 deg down): warm '
+        'the floor there: 5.1-6.5 m away for a rig 2.9 m high looking 40 deg down): warm '
         'points from this height up to min_point_height_m, away from every other detection, '
         'make a detection when their warm region reaches the top row; it must stand on its '
         'legs, no wider than far_legs_max_width_m; 0: off (needs the image and camera '
@@ -108,7 +108,7 @@ class PeopleConfig:
         True, 'a new track is published at its first detection, not after min_hits, when that '
         'one is not cut by the top edge, its head is high enough and it stands on warm legs '
         'at its depth as a body cut by the top edge must (legs_min_fraction, legs_max_gap_m), '
-        'and no published track is within gate_m of it')
+        'and no track is within gate_m of it')
     min_travel_m: float = _field(
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
@@ -161,7 +161,8 @@ class PeopleConfig:
                              f'min_point_height_m ({self.min_point_height_m!r}), got '
                              f'{self.far_legs_min_height_m!r}')
         for field in dataclasses.fields(self):
-            if field.type in (bool, 'bool') and not isinstance(getattr(self, field.name), bool):
+            if field.type in (bool, 'bool') and \
+                    not isinstance(getattr(self, field.name), (bool, np.bool_)):
                 raise ValueError(f'people.{field.name}: expected true or false, got '
                                  f'{getattr(self, field.name)!r}')
         for name in ('legs_depth_tolerance_m', 'legs_max_gap_m', 'far_legs_max_width_m'):
@@ -531,7 +532,8 @@ def legs_only_bodies(detections, warm, transform, intrinsics, pixels, counts=Non
     A legs-only detection is kept when the warm region of its points reaches the image's top
     row (``silhouette_reaches_top``) and the top edge crosses it at least ``LEGS_HEIGHTS_M``
     high (the whole legs' segment in view: farther, a low warm thing reaches the edge as
-    legs do); its head height becomes that crossing's height when higher than its points'
+    legs do; a crossing outside 0-3 m, as for a rig looking steeply down, counts as too
+    far); its head height becomes that crossing's height when higher than its points'
     top (a lower bound: the body goes on above the image). ``pixels``: the left pixels of
     the points the detections' ``members`` index. Other detections pass unchanged.
     ``counts`` gains ``legs_only_detections``, ``legs_only_below_top`` and
@@ -594,7 +596,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     ``min_head_height_m`` high gets the same test and ``legs_under_head`` when it passes
     (``head_legs_checked``, ``head_legs_seen``): a track starting on it is published at
     once (``PeopleTracker``). Only one farther than ``gate_m`` from every ``tracked_xy``
-    (the tracks' predicted floor positions) is tested: one nearer continues a track.
+    (every track's predicted floor position, published or not) is tested: one nearer
+    continues a track, or waits for ``min_hits`` beside an unpublished one.
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
@@ -926,7 +929,9 @@ class PeopleTracker:
 
     def predicted_xy(self, stamp_s):
         """Return each track's floor position predicted to ``stamp_s`` (no state change)."""
-        dt = 0.0 if self.stamp_s is None else max(0.0, stamp_s - self.stamp_s)
+        if self.stamp_s is not None and stamp_s < self.stamp_s:
+            return []       # time went back: ``update`` starts over without these tracks
+        dt = 0.0 if self.stamp_s is None else stamp_s - self.stamp_s
         return [(t.state[0] + dt * t.state[2], t.state[1] + dt * t.state[3])
                 for t in self.tracks]
 
