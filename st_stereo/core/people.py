@@ -1109,21 +1109,21 @@ class PeopleEstimator:
         self.counts['points_out_of_range'] += int((keep & ~in_range).sum())
         keep &= in_range
         used = np.flatnonzero(keep)
+        pixels = np.column_stack([x_left, y])[keep]
         detections = detect_people(
             world[keep], centre, None if disparity is None else np.asarray(disparity)[keep],
             points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
-            self.config, np.column_stack([x_left, y])[keep], image_shape)
+            self.config, pixels, image_shape)
         self.counts['detections'] += len(detections)
         if warm is not None and intrinsics is not None:
             detections = legs_only_bodies(detections, warm, self.transform, intrinsics,
-                                          np.column_stack([x_left, y])[keep], self.counts)
+                                          pixels, self.counts)
         else:       # nothing tells a far body's legs from a low warm thing
             self.counts['legs_only_not_checked'] += sum(d.legs_only for d in detections)
             detections = [d for d in detections if not d.legs_only]
         if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
             detections = standing_on_legs(detections, warm, self.transform, intrinsics,
-                                          points[keep], np.column_stack([x_left, y])[keep],
-                                          self.config, self.counts,
+                                          points[keep], pixels, self.config, self.counts,
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
