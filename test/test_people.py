@@ -56,6 +56,9 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('far_legs_min_height_m', 0.6, r'far_legs_min_height_m: expected 0 \(off\) or a value '
      r'below min_point_height_m \(0.6\)'),
     ('far_legs_max_width_m', 0.0, 'far_legs_max_width_m: expected a number > 0'),
+    ('object_min_hits', -1, r'object_min_hits: expected an integer >= 0 \(0: off\), got -1'),
+    ('object_min_hits', 2.0, r'object_min_hits: expected an integer >= 0'),
+    ('object_radius_m', 0.0, 'object_radius_m: expected a number > 0'),
     ('confirm_on_legs', 'false', "confirm_on_legs: expected true or false, got 'false'"),
     ('require_warm', 1, 'require_warm: expected true or false, got 1'),
 ])
@@ -570,6 +573,47 @@ def test_an_unconfirmed_track_does_not_coast_on_to_take_a_stray_detection():
     ghost = Detection(0.55, 3.0, 1.0, 23, 1.0, np.eye(2) * 1e-3)
     assert tracker.update([ghost], 4.6) == []
     assert tracker.counts['started'] == 0
+
+
+def _walker_past_a_split_screen(config, walker_stops_s=1.0, end_s=4.0):
+    """Run a published walker towards a screen that makes two cut detections 0.45 m apart."""
+    tracker = PeopleTracker(config)
+    halves = [Detection(1.62, 4.57, 0.99, 24, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                        cut_top=True),
+              Detection(1.17, 4.62, 0.97, 22, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                        cut_top=True)]
+    published = []
+    for index, t in enumerate(np.arange(0, end_s, 0.115)):
+        screen = halves if index % 2 else halves[:1]       # one half now and then
+        walker = walk((0.0, 3.8), (0.9, 0.5), [t])[0]
+        detections = screen + ([walker] if t < walker_stops_s else [])
+        published.append((t, walker, [(track.track_id, track.state[:2].copy())
+                                      for track in tracker.update(detections, t)]))
+    return tracker, published
+
+
+def test_a_published_walker_passing_a_warm_screen_does_not_take_it():
+    # far_walker, and walk_across with the POC velocities: a walker's detections stopped
+    # beside a warm screen cut by the top edge, its track took the screen's detection
+    # (within gate_m of its prediction) and stayed on the screen for good.
+    config = PeopleConfig()
+    tracker, published = _walker_past_a_split_screen(config)
+    assert any(tracks for t, _, tracks in published if t < 1.0)
+    late = [tracks for t, _, tracks in published if t > 1.0 + config.publish_coast_s + 0.05]
+    assert late and not any(late)               # coasted, then ended: nothing on the screen
+    assert tracker.counts['object_detections'] > 0
+    hijacked = PeopleConfig(object_min_hits=0)
+    _, before = _walker_past_a_split_screen(hijacked)
+    assert all(tracks for t, _, tracks in before if t > 1.0 + config.publish_coast_s + 0.05)
+
+
+def test_a_published_walker_reaching_a_warm_screen_keeps_its_id():
+    # Only what the screen alone makes (cut, no legs) is the screen's: the walker's own
+    # detections, head in view, are the walker's up to the screen.
+    _, published = _walker_past_a_split_screen(PeopleConfig(), walker_stops_s=1.6, end_s=1.6)
+    for t, walker, tracks in published[2:]:
+        assert [key for key, _ in tracks] == [1]
+        assert math.hypot(*(tracks[0][1] - (walker.x, walker.y))) < 0.1
 
 
 def test_time_going_back_starts_over():

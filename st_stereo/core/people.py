@@ -123,6 +123,14 @@ class PeopleConfig:
     legs_max_gap_m: float = _field(
         0.25, 'and the warm column at it from 0.1 to 0.8 m has no cool stretch longer than '
         'this (a warm computer under a desk with a screen on it: knee space and desk top), m')
+    object_min_hits: int = _field(
+        5, 'an unpublished track detected this many times, never seen as a person and never '
+        'farther than object_radius_m from where it started is a warm object (a screen): a '
+        'detection cut by the top edge without legs within object_radius_m of it continues '
+        'that object, never a published track passing by (which then coasts); 0: off')
+    object_radius_m: float = _field(
+        0.6, 'how far the detections of one warm object spread (a screen cut by the top edge '
+        'makes one or two detections up to 0.5 m apart), m')
     reacquire_cut_s: float = _field(
         0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
     max_range_m: float = _field(
@@ -134,7 +142,7 @@ class PeopleConfig:
     def __post_init__(self):
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
                     'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma',
-                    'max_range_m')
+                    'max_range_m', 'object_radius_m')
         for name in ('publish_coast_s', 'unconfirmed_coast_s'):
             if not 0.0 <= getattr(self, name) <= self.max_coast_s:
                 raise ValueError(f'people.{name}: expected 0 .. max_coast_s '
@@ -151,6 +159,10 @@ class PeopleConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f'people.{name}: expected an integer >= 1, got {value!r}')
+        if isinstance(self.object_min_hits, bool) or \
+                not isinstance(self.object_min_hits, int) or self.object_min_hits < 0:
+            raise ValueError(f'people.object_min_hits: expected an integer >= 0 (0: off), got '
+                             f'{self.object_min_hits!r}')
         if not 0.0 <= self.legs_min_fraction <= 1.0:
             raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
                              f'{self.legs_min_fraction!r}')
@@ -843,6 +855,7 @@ class Track:
     depth_spread_m: float = float('nan')   # the last detection's depth spread
     detection: Detection = None   # the last detection it took
     start: np.ndarray = None      # first floor position
+    farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
 
     def __post_init__(self):
         if self.start is None:
@@ -877,7 +890,8 @@ class PeopleTracker:
         self.stamp_s = None
         self.ended = []
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
-                       'unassigned_detections': 0, 'time_backwards': 0}
+                       'unassigned_detections': 0, 'time_backwards': 0,
+                       'object_detections': 0}
 
     def _predict(self, dt):
         f = np.eye(4)
@@ -907,6 +921,7 @@ class PeopleTracker:
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
         track.cut_top = detection.cut_top
         track.detection = detection
+        track.farthest_m = max(track.farthest_m, track.travel_m)
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -935,6 +950,35 @@ class PeopleTracker:
         return [(t.state[0] + dt * t.state[2], t.state[1] + dt * t.state[3])
                 for t in self.tracks]
 
+    def is_warm_object(self, track):
+        """
+        Whether an unpublished track has shown a static warm object, not a person.
+
+        Detected at least ``object_min_hits`` times, never seen as a person (``_is_person``)
+        and never farther than ``object_radius_m`` from where it started: a warm screen on a
+        desk, cut by the image's top edge, detected pair after pair in the same place (in
+        one piece or two, which the track takes in turn).
+        """
+        return bool(self.config.object_min_hits) and not track.confirmed and \
+            track.hits >= self.config.object_min_hits and not track.seen_as_person and \
+            track.farthest_m <= self.config.object_radius_m
+
+    def objects_detections(self, detections):
+        """
+        Return the detections continuing a warm object's track (``is_warm_object``), indices.
+
+        A detection cut by the top edge without its legs seen, within ``object_radius_m`` of
+        such a track's position: what a published track passing the object must not take (a
+        walker's track took a warm screen it passed and stayed on it for good, far_walker).
+        """
+        objects = [t.state[:2] for t in self.tracks if self.is_warm_object(t)]
+        if not objects:
+            return set()
+        return {i for i, d in enumerate(detections)
+                if d.cut_top and not d.legs_seen and
+                any(math.hypot(d.x - x, d.y - y) <= self.config.object_radius_m
+                    for x, y in objects)}
+
     def gate(self, track):
         """
         Return how far a detection may be from the track's prediction.
@@ -962,11 +1006,14 @@ class PeopleTracker:
         self.stamp_s = stamp_s
         self._predict(dt)
         assigned = set()
+        objects = self.objects_detections(detections)
+        self.counts['object_detections'] += len(objects)
         # Confirmed tracks first (a person walking up to a warm screen keeps the id; the
-        # screen's unconfirmed track gets what is left).
+        # screen's unconfirmed track gets what is left), but never a warm object's detection.
         for group in ([t for t in self.tracks if t.confirmed],
                       [t for t in self.tracks if not t.confirmed]):
-            free = [i for i in range(len(detections)) if i not in assigned]
+            free = [i for i in range(len(detections)) if i not in assigned and
+                    not (group and group[0].confirmed and i in objects)]
             if not group or not free:
                 continue
             distance = np.array([[math.hypot(t.state[0] - detections[i].x,
