@@ -575,7 +575,7 @@ def test_an_unconfirmed_track_does_not_coast_on_to_take_a_stray_detection():
     assert tracker.counts['started'] == 0
 
 
-def _walker_past_a_split_screen(config, walker_stops_s=1.0, end_s=4.0):
+def _walker_past_a_split_screen(config, walker_stops_s=2.0, end_s=5.0):
     """Run a published walker towards a screen that makes two cut detections 0.45 m apart."""
     tracker = PeopleTracker(config)
     halves = [Detection(1.62, 4.57, 0.99, 24, 1.0, np.eye(2) * 1e-3, head_visible=False,
@@ -584,8 +584,8 @@ def _walker_past_a_split_screen(config, walker_stops_s=1.0, end_s=4.0):
                         cut_top=True)]
     published = []
     for index, t in enumerate(np.arange(0, end_s, 0.115)):
-        screen = halves if index % 2 else halves[:1]       # one half now and then
-        walker = walk((0.0, 3.8), (0.9, 0.5), [t])[0]
+        screen = halves if index % 3 else halves[:1]        # one half missing now and then
+        walker = walk((-0.9, 3.3), (0.9, 0.5), [t])[0]
         detections = screen + ([walker] if t < walker_stops_s else [])
         published.append((t, walker, [(track.track_id, track.state[:2].copy())
                                       for track in tracker.update(detections, t)]))
@@ -598,22 +598,43 @@ def test_a_published_walker_passing_a_warm_screen_does_not_take_it():
     # (within gate_m of its prediction) and stayed on the screen for good.
     config = PeopleConfig()
     tracker, published = _walker_past_a_split_screen(config)
-    assert any(tracks for t, _, tracks in published if t < 1.0)
-    late = [tracks for t, _, tracks in published if t > 1.0 + config.publish_coast_s + 0.05]
+    assert any(tracks for t, _, tracks in published if t < 2.0)
+    late = [tracks for t, _, tracks in published if t > 2.0 + config.publish_coast_s + 0.05]
     assert late and not any(late)               # coasted, then ended: nothing on the screen
     assert tracker.counts['object_detections'] > 0
     hijacked = PeopleConfig(object_min_hits=0)
     _, before = _walker_past_a_split_screen(hijacked)
-    assert all(tracks for t, _, tracks in before if t > 1.0 + config.publish_coast_s + 0.05)
+    assert all(tracks for t, _, tracks in before if t > 2.0 + config.publish_coast_s + 0.05)
 
 
 def test_a_published_walker_reaching_a_warm_screen_keeps_its_id():
     # Only what the screen alone makes (cut, no legs) is the screen's: the walker's own
     # detections, head in view, are the walker's up to the screen.
-    _, published = _walker_past_a_split_screen(PeopleConfig(), walker_stops_s=1.6, end_s=1.6)
+    _, published = _walker_past_a_split_screen(PeopleConfig(), walker_stops_s=2.6, end_s=2.6)
     for t, walker, tracks in published[2:]:
         assert [key for key, _ in tracks] == [1]
         assert math.hypot(*(tracks[0][1] - (walker.x, walker.y))) < 0.1
+
+
+def test_a_far_person_beside_one_whose_legs_are_hidden_keeps_the_track():
+    # Two people standing far off 0.7 m apart, heads above the image: one on legs (published),
+    # one with its legs hidden (never published: to the tracker a warm object). The
+    # published one's own detections without legs stay its own.
+    config = PeopleConfig()
+    tracker = PeopleTracker(config)
+    rng = np.random.default_rng(3)
+    ids = set()
+    for index, t in enumerate(np.arange(0, 6, 0.115)):
+        jitter = rng.normal(0.0, 0.05, 4)
+        seen = Detection(0.2 + jitter[0], 4.3 + jitter[1], 1.1, 20, 1.0, np.eye(2) * 1e-3,
+                         head_visible=False, cut_top=True, legs_seen=index < 4 or index % 2)
+        hidden = Detection(-0.5 + jitter[2], 4.5 + jitter[3], 1.1, 20, 1.0, np.eye(2) * 1e-3,
+                           head_visible=False, cut_top=True)
+        tracks = tracker.update([seen, hidden], t)
+        if index >= 2:
+            assert len(tracks) == 1 and abs(tracks[0].state[0] - 0.2) < 0.2
+        ids.update(track.track_id for track in tracks)
+    assert ids == {1}
 
 
 def test_time_going_back_starts_over():

@@ -126,11 +126,12 @@ class PeopleConfig:
     object_min_hits: int = _field(
         5, 'an unpublished track detected this many times, never seen as a person and never '
         'farther than object_radius_m from where it started is a warm object (a screen): a '
-        'detection cut by the top edge without legs within object_radius_m of it continues '
-        'that object, never a published track passing by (which then coasts); 0: off')
+        'detection cut by the top edge without legs within person_radius_m of where it has '
+        'been, and nearer to that than to the prediction of a published track, is not given to '
+        'that track (which coasts instead); 0: off')
     object_radius_m: float = _field(
-        0.6, 'how far the detections of one warm object spread (a screen cut by the top edge '
-        'makes one or two detections up to 0.5 m apart), m')
+        0.6, 'how far the detections of one warm object may spread (a screen cut by the top '
+        'edge makes one or two detections up to 0.5 m apart), m')
     reacquire_cut_s: float = _field(
         0.35, 'a body cut by the top edge continues a track only if it was seen this recently, s')
     max_range_m: float = _field(
@@ -834,6 +835,9 @@ def _cluster_detections(evidence, indices, config, legs_only):
     return detections
 
 
+PLACES_KEPT = 16     # a track's last detections' positions kept (where a warm object has been)
+
+
 @dataclasses.dataclass
 class Track:
     """One person followed over pairs: constant-velocity state ``x, y, vx, vy``."""
@@ -856,6 +860,7 @@ class Track:
     detection: Detection = None   # the last detection it took
     start: np.ndarray = None      # first floor position
     farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
+    places: tuple = ()            # floor positions of its last PLACES_KEPT detections
 
     def __post_init__(self):
         if self.start is None:
@@ -922,6 +927,7 @@ class PeopleTracker:
         track.cut_top = detection.cut_top
         track.detection = detection
         track.farthest_m = max(track.farthest_m, track.travel_m)
+        track.places = (track.places + ((detection.x, detection.y),))[-PLACES_KEPT:]
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -963,21 +969,22 @@ class PeopleTracker:
             track.hits >= self.config.object_min_hits and not track.seen_as_person and \
             track.farthest_m <= self.config.object_radius_m
 
-    def objects_detections(self, detections):
+    def object_distances(self, detections):
         """
-        Return the detections continuing a warm object's track (``is_warm_object``), indices.
+        Return each detection's distance to where a warm object has been (inf: none near).
 
-        A detection cut by the top edge without its legs seen, within ``object_radius_m`` of
-        such a track's position: what a published track passing the object must not take (a
-        walker's track took a warm screen it passed and stayed on it for good, far_walker).
+        For a detection cut by the top edge without its legs seen, the distance to the
+        nearest of the last ``PLACES_KEPT`` detections of a warm object's track
+        (``is_warm_object``); inf for the others and when there is no such track.
         """
-        objects = [t.state[:2] for t in self.tracks if self.is_warm_object(t)]
-        if not objects:
-            return set()
-        return {i for i, d in enumerate(detections)
-                if d.cut_top and not d.legs_seen and
-                any(math.hypot(d.x - x, d.y - y) <= self.config.object_radius_m
-                    for x, y in objects)}
+        places = [xy for t in self.tracks if self.is_warm_object(t) for xy in t.places]
+        out = np.full(len(detections), np.inf)
+        if places:
+            places = np.asarray(places)
+            for index, d in enumerate(detections):
+                if d.cut_top and not d.legs_seen:
+                    out[index] = float(np.hypot(places[:, 0] - d.x, places[:, 1] - d.y).min())
+        return out
 
     def gate(self, track):
         """
@@ -1006,14 +1013,13 @@ class PeopleTracker:
         self.stamp_s = stamp_s
         self._predict(dt)
         assigned = set()
-        objects = self.objects_detections(detections)
-        self.counts['object_detections'] += len(objects)
+        to_object = self.object_distances(detections)
+        withheld = set()
         # Confirmed tracks first (a person walking up to a warm screen keeps the id; the
-        # screen's unconfirmed track gets what is left), but never a warm object's detection.
+        # screen's unconfirmed track gets what is left).
         for group in ([t for t in self.tracks if t.confirmed],
                       [t for t in self.tracks if not t.confirmed]):
-            free = [i for i in range(len(detections)) if i not in assigned and
-                    not (group and group[0].confirmed and i in objects)]
+            free = [i for i in range(len(detections)) if i not in assigned]
             if not group or not free:
                 continue
             distance = np.array([[math.hypot(t.state[0] - detections[i].x,
@@ -1029,6 +1035,13 @@ class PeopleTracker:
                             for i in free])[None, :]
             distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
                                 distance)
+            if group[0].confirmed:
+                # Where a warm object has been, nearer than the track's prediction: the
+                # object's, not a passing published track's (it coasts instead).
+                near = to_object[free][None, :]
+                objects = (near <= self.config.person_radius_m) & (near < distance)
+                withheld.update(free[col] for col in np.flatnonzero(objects.any(axis=0)))
+                distance = np.where(objects, np.inf, distance)
             cost = np.where(distance <= gate, distance, 1e6)
             for row, col in zip(*linear_sum_assignment(cost)):
                 if distance[row, col] <= gate[row, 0]:
@@ -1036,6 +1049,7 @@ class PeopleTracker:
                     group[row].last_seen_s = stamp_s
                     assigned.add(free[col])
                     self.counts['assigned'] += 1
+        self.counts['object_detections'] += len(withheld)
         for index, detection in enumerate(detections):
             if index in assigned:
                 continue
