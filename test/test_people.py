@@ -607,6 +607,41 @@ def test_a_published_walker_passing_a_warm_screen_does_not_take_it():
     assert all(tracks for t, _, tracks in before if t > 2.0 + config.publish_coast_s + 0.05)
 
 
+@pytest.mark.parametrize('walker_y, lost_at_x', [(4.0, 1.3), (4.1, 2.0)])
+def test_a_walker_who_hid_the_screen_does_not_take_it_either(walker_y, lost_at_x):
+    # The walker hides one half of the screen for a few pairs, then its own detections stop:
+    # the hidden half's track ends (an unpublished track coasts unconfirmed_coast_s), or
+    # moves to the other half, and a new one is an object only after object_min_hits; where
+    # the object was is remembered for max_coast_s (an independent review's scenes).
+    def run(config):
+        tracker, last = PeopleTracker(config), []
+        halves = [(1.62, 4.57), (1.17, 4.62)]
+        for t in np.arange(0, 4.5, 0.115):
+            walker_x = -0.5 + 0.9 * t
+            detections = [Detection(x, y, 0.99, 24, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                                    cut_top=True) for x, y in halves
+                          if not (abs(walker_x - x * walker_y / y) < 0.3 and
+                                  walker_x < lost_at_x)]
+            if walker_x < lost_at_x:
+                detections += walk((walker_x, walker_y), (0.0, 0.0), [0.0])
+            last = tracker.update(detections, t)
+        return tracker, last
+    tracker, last = run(PeopleConfig())
+    assert last == [] and tracker.counts['object_detections'] > 0
+    assert [track.track_id for track in run(PeopleConfig(object_min_hits=0))[1]] == [1]
+
+
+def test_withheld_counts_only_what_a_track_could_have_taken():
+    tracker = PeopleTracker()
+    screen = Detection(1.62, 4.57, 0.99, 24, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    for t in np.arange(0, 3, 0.115):        # a walker 2.6 m from the screen
+        published = tracker.update([screen] + walk((-1.0, 2.0), (0.9, 0.0), [t]), t)
+    assert [track.track_id for track in published] == [1]
+    assert any(tracker.is_warm_object(track) for track in tracker.tracks)
+    assert tracker.counts['object_detections'] == 0
+
+
 def test_a_published_walker_reaching_a_warm_screen_keeps_its_id():
     # Only what the screen alone makes (cut, no legs) is the screen's: the walker's own
     # detections, head in view, are the walker's up to the screen.

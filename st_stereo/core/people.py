@@ -835,7 +835,21 @@ def _cluster_detections(evidence, indices, config, legs_only):
     return detections
 
 
-PLACES_KEPT = 16     # a track's last detections' positions kept (where a warm object has been)
+PLACES_KEPT = 8      # a track's last detections' positions kept (where a warm object is)
+# The places a warm object's track left by a jump to another piece (a screen's other half:
+# its spots, one per SPOT_SPACING_M, the last SPOTS_KEPT), and those of an ended one, hold
+# the object's detections when they come back there within their jitter (0.03-0.05 m on the
+# simulated screens): a person standing 0.2 m in front of it is not it.
+REMEMBERED_RADIUS_M = 0.1
+SPOT_SPACING_M = 0.05
+SPOTS_KEPT = 32
+
+
+def new_spots(spots, x, y):
+    """Return ``spots`` with ``(x, y)`` added when farther than SPOT_SPACING_M from each."""
+    if all(math.hypot(x - sx, y - sy) > SPOT_SPACING_M for sx, sy in spots):
+        spots = (spots + ((x, y),))[-SPOTS_KEPT:]
+    return spots
 
 
 @dataclasses.dataclass
@@ -861,6 +875,7 @@ class Track:
     start: np.ndarray = None      # first floor position
     farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
     places: tuple = ()            # floor positions of its last PLACES_KEPT detections
+    spots: tuple = ()             # places it left by a jump (a warm object's other piece)
 
     def __post_init__(self):
         if self.start is None:
@@ -894,6 +909,7 @@ class PeopleTracker:
         self.next_id = 1
         self.stamp_s = None
         self.ended = []
+        self.object_memory = []      # (last seen s, spots) of warm objects' ended tracks
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
                        'unassigned_detections': 0, 'time_backwards': 0,
                        'object_detections': 0}
@@ -927,6 +943,11 @@ class PeopleTracker:
         track.cut_top = detection.cut_top
         track.detection = detection
         track.farthest_m = max(track.farthest_m, track.travel_m)
+        if self.is_warm_object(track) and track.places and min(
+                math.hypot(detection.x - x, detection.y - y) for x, y in track.places) > \
+                self.config.person_radius_m:
+            for x, y in track.places:      # jumped to the object's other piece
+                track.spots = new_spots(track.spots, x, y)
         track.places = (track.places + ((detection.x, detection.y),))[-PLACES_KEPT:]
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
@@ -975,15 +996,27 @@ class PeopleTracker:
 
         For a detection cut by the top edge without its legs seen, the distance to the
         nearest of the last ``PLACES_KEPT`` detections of a warm object's track
-        (``is_warm_object``); inf for the others and when there is no such track.
+        (``is_warm_object``), or, when within ``REMEMBERED_RADIUS_M``, to a place such a
+        track left by a jump (a screen's other half, which its track took in turn) or one
+        an object's track that ended within ``max_coast_s`` held (a passer-by hid the
+        screen for a few pairs: its track ends after ``unconfirmed_coast_s``, and a new one
+        is an object only after ``object_min_hits``); inf for the others and when there is
+        no such track.
         """
-        places = [xy for t in self.tracks if self.is_warm_object(t) for xy in t.places]
+        objects = [t for t in self.tracks if self.is_warm_object(t)]
+        live = [xy for t in objects for xy in t.places]
+        remembered = [xy for t in objects for xy in t.spots] + \
+            [xy for _, kept in self.object_memory for xy in kept]
         out = np.full(len(detections), np.inf)
-        if places:
+        for places, radius in ((live, np.inf), (remembered, REMEMBERED_RADIUS_M)):
+            if not places:
+                continue
             places = np.asarray(places)
             for index, d in enumerate(detections):
                 if d.cut_top and not d.legs_seen:
-                    out[index] = float(np.hypot(places[:, 0] - d.x, places[:, 1] - d.y).min())
+                    near = float(np.hypot(places[:, 0] - d.x, places[:, 1] - d.y).min())
+                    if near <= radius:
+                        out[index] = min(out[index], near)
         return out
 
     def gate(self, track):
@@ -1009,6 +1042,7 @@ class PeopleTracker:
             self.counts['time_backwards'] += 1
             self.ended = [t.track_id for t in self.tracks if t.confirmed]
             self.tracks = []
+            self.object_memory = []
         dt = 0.0 if self.stamp_s is None or stamp_s < self.stamp_s else stamp_s - self.stamp_s
         self.stamp_s = stamp_s
         self._predict(dt)
@@ -1040,7 +1074,8 @@ class PeopleTracker:
                 # object's, not a passing published track's (it coasts instead).
                 near = to_object[free][None, :]
                 objects = (near <= self.config.person_radius_m) & (near < distance)
-                withheld.update(free[col] for col in np.flatnonzero(objects.any(axis=0)))
+                takable = objects & (distance <= gate)
+                withheld.update(free[col] for col in np.flatnonzero(takable.any(axis=0)))
                 distance = np.where(objects, np.inf, distance)
             cost = np.where(distance <= gate, distance, 1e6)
             for row, col in zip(*linear_sum_assignment(cost)):
@@ -1063,7 +1098,8 @@ class PeopleTracker:
                                      cut_top=detection.cut_top,
                                      depth_spread_m=detection.depth_spread_m,
                                      detection=detection,
-                                     legs_recent=(detection.legs_seen,)))
+                                     legs_recent=(detection.legs_seen,),
+                                     places=((detection.x, detection.y),)))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
@@ -1075,9 +1111,14 @@ class PeopleTracker:
                     self.counts['ended'] += 1
                 else:
                     self.counts['unconfirmed_ended'] += 1
+                    if self.is_warm_object(track):
+                        self.object_memory.append((track.last_seen_s,
+                                                   track.spots + track.places))
             else:
                 alive.append(track)
         self.tracks = alive
+        self.object_memory = [(seen, kept) for seen, kept in self.object_memory
+                              if stamp_s - seen <= self.config.max_coast_s]
         for track in self.tracks:
             on_legs = self.config.confirm_on_legs and track.hits == 1 and \
                 track.detection is not None and track.detection.legs_under_head and \
