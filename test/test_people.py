@@ -13,7 +13,7 @@ import types
 
 import numpy as np
 import pytest
-from st_stereo.core.people import (detect_people, Detection,
+from st_stereo.core.people import (centred_on_silhouette, detect_people, Detection,
                                    legs_fraction, legs_only_bodies, PeopleConfig, PeopleEstimator,
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
                                    standing_on_legs, top_edge_height_m, vertical_segment_rows,
@@ -459,6 +459,83 @@ def test_a_silhouette_reaching_the_top_row_is_one_rising_out_of_the_image():
     bridge[3, 37:50] = True
     assert not silhouette_reaches_top(bridge, points)
     assert not silhouette_reaches_top(warm, np.zeros((0, 2)))
+
+
+def _one_sided(x, y, surfaces, member_below_x):
+    """Return a detection of the painted ``surfaces``: its points left of ``member_below_x``."""
+    rig, transform, intrinsics = _rig_geometry()
+    warm, points, pixels = _painted(rig, surfaces)
+    world = rectified_to_world(points, transform)
+    members = np.flatnonzero((world[:, 0] < member_below_x) & (np.abs(world[:, 1] - y) < 0.05))
+    detection = Detection(float(np.median(world[members, 0])), y, 1.5, len(members), 1.0,
+                          np.eye(2) * 1e-3, members=members)
+    return detection, warm, transform, intrinsics, points, pixels
+
+
+def test_a_body_matched_on_one_outline_is_placed_at_its_silhouettes_middle():
+    body = _box(0.2, 0.6, 4.0, 0.0, 1.5, nx=40, nz=80)        # 0.4 m wide, its middle at 0.4
+    detection, *scene = _one_sided(0.4, 4.0, body, member_below_x=0.28)
+    assert detection.x < 0.3                                    # its points: the left outline
+    counts = {}
+    [centred] = centred_on_silhouette([detection], *scene, counts=counts)
+    assert abs(centred.x - 0.4) <= 0.03 and abs(centred.y - 4.0) <= 0.03, centred
+    assert counts == {'silhouette_centred': 1, 'silhouette_not_found': 0,
+                      'silhouette_fragments': 0}
+    # Matched on both outlines already: it stays where it is.
+    whole, *scene = _one_sided(0.4, 4.0, body, member_below_x=1.0)
+    [kept] = centred_on_silhouette([whole], *scene)
+    assert abs(kept.x - whole.x) <= 0.03 and abs(kept.x - 0.4) <= 0.03
+
+
+def test_a_silhouette_joined_to_a_wide_warm_thing_or_the_image_side_moves_nothing():
+    body = _box(0.2, 0.6, 4.0, 0.3, 1.5, nx=40, nz=80)
+    # A warm wall 1.2 m wide right behind the body, as warm: one run, wider than a person.
+    wall = _box(0.2, 1.4, 4.05, 0.0, 1.7, nx=120, nz=90)
+    detection, *scene = _one_sided(0.4, 4.0, np.vstack([body, wall]), member_below_x=0.28)
+    counts = {}
+    assert centred_on_silhouette([detection], *scene, counts=counts) == [detection]
+    assert counts == {'silhouette_centred': 0, 'silhouette_not_found': 1,
+                      'silhouette_fragments': 0}
+    # A body running off the image's side: its width beyond it is not seen.
+    rig, transform, intrinsics = _rig_geometry()
+    edge = _box(-3.5, -1.8, 4.0, 0.0, 1.5, nx=200, nz=80)
+    detection, *scene = _one_sided(-2.0, 4.0, edge, member_below_x=-1.9)
+    assert centred_on_silhouette([detection], *scene) == [detection]
+    # A body cut by the rectification's invalid border (no data, never warm) likewise.
+    body, *scene = _one_sided(0.4, 4.0, _box(0.2, 0.6, 4.0, 0.3, 1.5, nx=40, nz=80), 1.0)
+    warm, pixels = scene[0], scene[4]
+    border = int(np.rint(pixels[:, 0].min())) + 3
+    cut, valid = warm.copy(), np.ones(warm.shape, dtype=bool)
+    cut[:, :border] = valid[:, :border] = False
+    inside = np.flatnonzero(np.rint(pixels[body.members, 0]) >= border)
+    body = dataclasses.replace(body, members=body.members[inside])
+    assert centred_on_silhouette([body], cut, *scene[1:], valid=valid) == [body]
+    [moved] = centred_on_silhouette([body], cut, *scene[1:])     # (without: the cut middle)
+    assert moved.x - body.x > 0.03
+    # No matched point on a warm pixel: nothing to go by.
+    [same] = centred_on_silhouette([dataclasses.replace(detection, members=np.zeros(0, int))],
+                                   *scene)
+    assert same.x == detection.x
+
+
+def test_a_fragment_on_a_bodys_silhouette_is_left_out_and_a_second_body_is_not():
+    body = _box(0.2, 0.6, 4.0, 0.3, 1.5, nx=40, nz=80)
+    other = _box(1.4, 1.8, 4.0, 0.3, 1.5, nx=40, nz=80)       # another person, 0.8 m aside
+    strong, warm, transform, intrinsics, points, pixels = _one_sided(
+        0.4, 4.0, np.vstack([body, other]), member_below_x=0.3)
+    # Its upper right outline matched 0.7 m too far: a fragment on the same silhouette.
+    world = rectified_to_world(points, transform)
+    upper_right = np.flatnonzero((world[:, 0] > 0.5) & (world[:, 0] < 0.7) & (world[:, 2] > 1.0))
+    fragment = Detection(0.6, 4.7, 1.5, 6, 1.0, np.eye(2) * 1e-3, members=upper_right)
+    beside = np.flatnonzero(world[:, 0] > 1.3)
+    second = Detection(1.6, 4.0, 1.5, 8, 1.0, np.eye(2) * 1e-3, members=beside[::50])
+    counts = {}
+    out = centred_on_silhouette([fragment, strong, second], warm, transform, intrinsics,
+                                points, pixels, counts)
+    assert [d.points for d in out] == [strong.points, second.points]
+    assert counts == {'silhouette_centred': 2, 'silhouette_not_found': 0,
+                      'silhouette_fragments': 1}
+    assert abs(out[0].x - 0.4) <= 0.03 and abs(out[1].x - 1.6) <= 0.03
 
 
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():

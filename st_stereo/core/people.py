@@ -22,6 +22,9 @@ The stages, each a pure function or a small state machine fed one pair at a time
    at the body's depth (matched points on them) or a cool desk. Farther still only the legs
    show: a second pass over the lower points finds them where they reach the top edge
    (``far_legs_min_height_m``), and ``warm_run_width_m`` tells legs from a radiator.
+   Matches on a warm body lie on its outlines, often more on one side: once the legs are
+   tested, ``centred_on_silhouette`` moves each detection across the view to the middle of
+   its warm silhouette (``centre_on_silhouette``); the points give its depth.
 4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
    assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
    never repeat, a track confirmed after ``min_hits`` detections (or at once when its first
@@ -91,6 +94,10 @@ class PeopleConfig:
         0.0, 'a whole body: its floor position is pushed this far back from the camera, m')
     cut_body_offset_m: float = _field(
         0.1, 'a body cut by the top edge (what is seen is its front): pushed this far back, m')
+    centre_on_silhouette: bool = _field(
+        True, "a detection's position across the view is the middle of its warm silhouette "
+        '(per image row, the warm run holding its points), not the median of its points, '
+        'which lie mostly on one outline (needs the image and camera matrix)')
     disparity_sigma_px: float = _field(
         0.15, 'disparity uncertainty of one point, for the position covariance, pixels')
     gate_m: float = _field(
@@ -493,6 +500,135 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
             return float('nan')
         widths.append((end - start + 1) * depth / fx)
     return float(np.median(widths)) if widths else float('nan')
+
+
+SILHOUETTE_MAX_WIDTH_M = 0.6   # wider than shoulders (0.5 m) and a pixel of blur each side
+
+
+def vertical_line_columns(floor_xy, rows, transform, intrinsics):
+    """
+    Column at each image row of the image of the vertical line at ``floor_xy`` (world).
+
+    Two of its points (0 and 2 m high) go into the rectified left frame and onto the image;
+    every point of the vertical plane through them and the camera centre lies on the same
+    image line, so a position pushed along the horizontal viewing direction keeps its
+    column at a given row. NaN when either point is behind the camera or the line is
+    horizontal in the image.
+    """
+    rotation, translation = transform
+    fx, fy, cx, cy = intrinsics
+    rows = np.asarray(rows, dtype=np.float64)
+    world = np.array([[floor_xy[0], floor_xy[1], 0.0], [floor_xy[0], floor_xy[1], 2.0]])
+    camera = (world - translation) @ rotation
+    if not (camera[:, 2] > 0).all():
+        return np.full(rows.shape, np.nan)
+    u = fx * camera[:, 0] / camera[:, 2] + cx
+    v = fy * camera[:, 1] / camera[:, 2] + cy
+    if abs(v[1] - v[0]) < 1e-9:
+        return np.full(rows.shape, np.nan)
+    return u[0] + (rows - v[0]) * (u[1] - u[0]) / (v[1] - v[0])
+
+
+def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
+    """
+    Return the warm runs across a detection's body: ``{row: (start, end, depth)}``.
+
+    On each image row holding the detection's points on warm pixels (``members`` of
+    ``points``, rectified left frame n x 3, at left ``pixels`` n x 2) the warm run spanning
+    them is followed left and right while ``warm`` holds; ``depth`` is the median Z of those
+    points. Rows whose run reaches the image's side or a pixel without data (``valid``
+    False: the rectification's invalid border; the width beyond it is not seen) or is wider
+    than ``SILHOUETTE_MAX_WIDTH_M`` at that depth (two people side by side, a person before a
+    warm object) are left out.
+    """
+    members = np.asarray(detection.members if detection.members is not None else [], int)
+    if not len(members):
+        return {}
+    rows, cols, inside = pixel_indices(warm.shape, pixels[members, 0], pixels[members, 1])
+    on = inside & warm[rows, cols]
+    fx, width = intrinsics[0], warm.shape[1]
+    runs = {}
+    for row in np.unique(rows[on]).tolist():
+        here = on & (rows == row)
+        line = warm[row]
+        start, end = int(cols[here].min()), int(cols[here].max())
+        while start > 0 and line[start - 1]:
+            start -= 1
+        while end < width - 1 and line[end + 1]:
+            end += 1
+        depth = float(np.median(points[members[here], 2]))
+        seen = start > 0 and end < width - 1 and \
+            (valid is None or (valid[row, start - 1] and valid[row, end + 1]))
+        if seen and (end - start + 1) * depth / fx <= SILHOUETTE_MAX_WIDTH_M:
+            runs[row] = (start, end, depth)
+    return runs
+
+
+def silhouette_shift_xy(runs, detection, transform, intrinsics):
+    """
+    Floor shift ``(dx, dy)`` of a detection across the view to its warm silhouette's middle.
+
+    Matches on a warm body lie on its outlines, often more on one side than the other, so
+    the median of its points can sit up to half a body off its middle; the thermal image
+    shows the whole width. On each row of ``runs`` (``silhouette_runs``) the run's middle
+    less the column of the vertical at the detection's position (``vertical_line_columns``),
+    times the row's depth over ``fx``, is the shift along the camera's x axis there. Returns
+    the median over the rows, its horizontal part in the world, or None without a row.
+    """
+    rows = sorted(runs)
+    lines = vertical_line_columns((detection.x, detection.y), rows, transform, intrinsics)
+    axis = np.asarray(transform[0], dtype=np.float64)[:2, 0]
+    shifts = [axis * (0.5 * (runs[row][0] + runs[row][1]) - line) * runs[row][2] /
+              intrinsics[0] for row, line in zip(rows, lines) if math.isfinite(line)]
+    return np.median(np.array(shifts), axis=0) if shifts else None
+
+
+def shared_runs(runs, other):
+    """Fraction of the rows of ``runs`` whose run is ``other``'s on that row (same span)."""
+    if not runs:
+        return 0.0
+    return float(np.mean([row in other and other[row][:2] == span[:2]
+                          for row, span in runs.items()]))
+
+
+def centred_on_silhouette(detections, warm, transform, intrinsics, points, pixels,
+                          counts=None, valid=None):
+    """
+    Return the detections moved across the view to their silhouettes' middles.
+
+    ``silhouette_runs`` and ``silhouette_shift_xy`` for each (the arguments are theirs;
+    ``valid``: the pixels with data, as ``WarmBackground`` takes them); one
+    without a usable row keeps its position. Strongest (most points) first: a detection half
+    or more of whose runs are a stronger one's (``shared_runs``: the same span on the same
+    row) is on that body's silhouette, a fragment of it (its points matched at another
+    depth: a cut body's often lie 0.4-0.8 m behind it), and is left out; on the same
+    bearing as the body once both are centred, its track would otherwise take the body's
+    detections. ``counts`` (a dict, optional) gains
+    ``silhouette_centred``, ``silhouette_not_found`` and ``silhouette_fragments``.
+    """
+    counts = {} if counts is None else counts
+    for key in ('silhouette_centred', 'silhouette_not_found', 'silhouette_fragments'):
+        counts.setdefault(key, 0)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    order = sorted(range(len(detections)), key=lambda i: -detections[i].points)
+    kept, kept_runs = {}, []
+    for index in order:
+        detection = detections[index]
+        runs = silhouette_runs(warm, detection, intrinsics, points, pixels, valid)
+        if any(shared_runs(runs, other) >= 0.5 for other in kept_runs):
+            counts['silhouette_fragments'] += 1
+            continue
+        shift = silhouette_shift_xy(runs, detection, transform, intrinsics) if runs else None
+        kept_runs.append(runs)
+        if shift is None:
+            counts['silhouette_not_found'] += 1
+            kept[index] = detection
+            continue
+        counts['silhouette_centred'] += 1
+        kept[index] = dataclasses.replace(detection, x=detection.x + float(shift[0]),
+                                          y=detection.y + float(shift[1]))
+    return [kept[index] for index in sorted(kept)]
 
 
 def top_edge_height_m(floor_xy, transform, intrinsics):
@@ -1173,7 +1309,9 @@ class PeopleEstimator:
                        'cut_legs_fragment': 0, 'cut_legs_gap': 0, 'cut_legs_not_checked': 0,
                        'cut_legs_wide': 0, 'head_legs_checked': 0, 'head_legs_seen': 0,
                        'legs_only_detections': 0, 'legs_only_below_top': 0,
-                       'legs_only_too_far': 0, 'legs_only_not_checked': 0}
+                       'legs_only_too_far': 0, 'legs_only_not_checked': 0,
+                       'silhouette_centred': 0, 'silhouette_not_found': 0,
+                       'silhouette_fragments': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -1229,6 +1367,12 @@ class PeopleEstimator:
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
+        if warm is not None and intrinsics is not None and self.config.centre_on_silhouette:
+            # After the legs tests: their windows were chosen around the points' median.
+            image = np.asarray(left_image, dtype=np.float64)
+            detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
+                                               points[keep], pixels, self.counts,
+                                               np.isfinite(image) & (image > 0))
         tracks = self.tracker.update(detections, stamp_s)
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
