@@ -461,6 +461,11 @@ def test_a_silhouette_reaching_the_top_row_is_one_rising_out_of_the_image():
     assert not silhouette_reaches_top(warm, np.zeros((0, 2)))
 
 
+def _published(detection):
+    """Return where a track taking ``detection`` publishes it: moved by its ``across``."""
+    return detection.x + detection.across[0], detection.y + detection.across[1]
+
+
 def _one_sided(x, y, surfaces, member_below_x):
     """Return a detection of the painted ``surfaces``: its points left of ``member_below_x``."""
     rig, transform, intrinsics = _rig_geometry()
@@ -478,13 +483,15 @@ def test_a_body_matched_on_one_outline_is_placed_at_its_silhouettes_middle():
     assert detection.x < 0.3                                    # its points: the left outline
     counts = {}
     [centred] = centred_on_silhouette([detection], *scene, counts=counts)
-    assert abs(centred.x - 0.4) <= 0.03 and abs(centred.y - 4.0) <= 0.03, centred
+    assert (centred.x, centred.y) == (detection.x, detection.y)     # what the tracker follows
+    x, y = _published(centred)
+    assert abs(x - 0.4) <= 0.03 and abs(y - 4.0) <= 0.03, (x, y)
     assert counts == {'silhouette_centred': 1, 'silhouette_not_found': 0,
-                      'silhouette_fragments': 0}
+                      'silhouette_shared': 0}
     # Matched on both outlines already: it stays where it is.
     whole, *scene = _one_sided(0.4, 4.0, body, member_below_x=1.0)
     [kept] = centred_on_silhouette([whole], *scene)
-    assert abs(kept.x - whole.x) <= 0.03 and abs(kept.x - 0.4) <= 0.03
+    assert abs(_published(kept)[0] - whole.x) <= 0.03 and abs(whole.x - 0.4) <= 0.03
 
 
 def test_a_silhouette_joined_to_a_wide_warm_thing_or_the_image_side_moves_nothing():
@@ -495,7 +502,7 @@ def test_a_silhouette_joined_to_a_wide_warm_thing_or_the_image_side_moves_nothin
     counts = {}
     assert centred_on_silhouette([detection], *scene, counts=counts) == [detection]
     assert counts == {'silhouette_centred': 0, 'silhouette_not_found': 1,
-                      'silhouette_fragments': 0}
+                      'silhouette_shared': 0}
     # A body running off the image's side: its width beyond it is not seen.
     rig, transform, intrinsics = _rig_geometry()
     edge = _box(-3.5, -1.8, 4.0, 0.0, 1.5, nx=200, nz=80)
@@ -511,31 +518,61 @@ def test_a_silhouette_joined_to_a_wide_warm_thing_or_the_image_side_moves_nothin
     body = dataclasses.replace(body, members=body.members[inside])
     assert centred_on_silhouette([body], cut, *scene[1:], valid=valid) == [body]
     [moved] = centred_on_silhouette([body], cut, *scene[1:])     # (without: the cut middle)
-    assert moved.x - body.x > 0.03
+    assert _published(moved)[0] - body.x > 0.03
     # No matched point on a warm pixel: nothing to go by.
     [same] = centred_on_silhouette([dataclasses.replace(detection, members=np.zeros(0, int))],
                                    *scene)
-    assert same.x == detection.x
+    assert same.across == (0.0, 0.0)
 
 
-def test_a_fragment_on_a_bodys_silhouette_is_left_out_and_a_second_body_is_not():
+def test_what_stands_on_a_stronger_bodys_silhouette_keeps_its_own_position():
     body = _box(0.2, 0.6, 4.0, 0.3, 1.5, nx=40, nz=80)
     other = _box(1.4, 1.8, 4.0, 0.3, 1.5, nx=40, nz=80)       # another person, 0.8 m aside
+    behind = _box(0.3, 0.7, 4.6, 0.3, 1.8, nx=40, nz=90)      # and one 0.6 m behind the first
     strong, warm, transform, intrinsics, points, pixels = _one_sided(
-        0.4, 4.0, np.vstack([body, other]), member_below_x=0.3)
-    # Its upper right outline matched 0.7 m too far: a fragment on the same silhouette.
+        0.4, 4.0, np.vstack([body, other, behind]), member_below_x=0.3)
     world = rectified_to_world(points, transform)
-    upper_right = np.flatnonzero((world[:, 0] > 0.5) & (world[:, 0] < 0.7) & (world[:, 2] > 1.0))
+    # The first body's upper right outline matched 0.7 m too far: a fragment on its
+    # silhouette, which centred would stand on the body's bearing.
+    upper_right = np.flatnonzero((world[:, 0] > 0.5) & (world[:, 0] < 0.6) &
+                                 (world[:, 2] > 1.0) & (np.abs(world[:, 1] - 4.0) < 0.05))
     fragment = Detection(0.6, 4.7, 1.5, 6, 1.0, np.eye(2) * 1e-3, members=upper_right)
+    # The person behind, matched on its own right outline, its rows joined to the first's.
+    right = np.flatnonzero((world[:, 0] > 0.6) & (np.abs(world[:, 1] - 4.6) < 0.05))
+    person_behind = Detection(0.65, 4.6, 1.8, 7, 1.0, np.eye(2) * 1e-3, members=right[::20])
     beside = np.flatnonzero(world[:, 0] > 1.3)
     second = Detection(1.6, 4.0, 1.5, 8, 1.0, np.eye(2) * 1e-3, members=beside[::50])
     counts = {}
-    out = centred_on_silhouette([fragment, strong, second], warm, transform, intrinsics,
-                                points, pixels, counts)
-    assert [d.points for d in out] == [strong.points, second.points]
+    given = [fragment, strong, person_behind, second]
+    out = centred_on_silhouette(given, warm, transform, intrinsics, points, pixels, counts)
+    assert [d.points for d in out] == [d.points for d in given]      # nobody left out
+    assert out[0] == fragment and out[2] == person_behind
+    assert abs(_published(out[1])[0] - 0.4) <= 0.03 and abs(_published(out[3])[0] - 1.6) <= 0.03
     assert counts == {'silhouette_centred': 2, 'silhouette_not_found': 0,
-                      'silhouette_fragments': 1}
-    assert abs(out[0].x - 0.4) <= 0.03 and abs(out[1].x - 1.6) <= 0.03
+                      'silhouette_shared': 2}
+
+
+def test_a_limb_a_pixel_apart_is_the_bodys_and_a_row_or_two_move_nothing():
+    body = _box(0.2, 0.6, 4.0, 0.3, 1.5, nx=40, nz=80)
+    detection, warm, transform, intrinsics, points, pixels = _one_sided(0.4, 4.0, body, 0.28)
+    # An arm one cool pixel apart from the body, its points on the arm alone.
+    rows = np.unique(np.rint(pixels[detection.members, 1]).astype(int))
+    arm_cols = np.array([np.flatnonzero(warm[r]).min() - 2 for r in rows])
+    arm = warm.copy()
+    arm[rows, arm_cols] = True
+    arm_pixels = np.column_stack([arm_cols, rows]).astype(float)
+    member_rows = np.rint(pixels[detection.members, 1]).astype(int)
+    arm_points = np.array([points[detection.members[member_rows == r]].mean(axis=0)
+                           for r in rows])
+    on_arm = dataclasses.replace(detection, members=len(points) + np.arange(len(arm_points)))
+    [bridged] = centred_on_silhouette([on_arm], arm, transform, intrinsics,
+                                      np.vstack([points, arm_points]),
+                                      np.vstack([pixels, arm_pixels]))
+    assert abs(_published(bridged)[0] - 0.4) <= 0.08       # the body's middle, and the arm's
+    # Only two rows of the body in view hold its points: too little to go by.
+    two = np.flatnonzero(np.isin(member_rows, rows[:2]))
+    few = dataclasses.replace(detection, members=detection.members[two])
+    assert centred_on_silhouette([few], warm, transform, intrinsics, points, pixels) == [few]
 
 
 def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted():
@@ -779,6 +816,22 @@ def test_the_detections_cloud_holds_every_documented_field():
     assert empty.width == 0 and point_cloud_fields(empty, ('x',))['x'].size == 0
 
 
+def test_a_track_follows_the_points_and_publishes_the_silhouettes_middle():
+    tracker = PeopleTracker()
+    shifted = [dataclasses.replace(d, across=(0.0, -0.12)) for d in
+               walk((0.5, 3.0), (1.0, 0.0), (0.0, 0.115), head=1.65)]
+    for t, d in zip((0.0, 0.115), shifted):
+        tracks = tracker.update([d], t)
+    plain = _tracks()
+    # The filter saw the same detections; what is published moves by the last one's shift.
+    assert np.allclose(tracks[0].state, plain[0].state)
+    assert np.allclose(tracks[0].position, plain[0].state[:2] + [0.0, -0.12])
+    header = Header(frame_id='map')
+    cloud = point_cloud_fields(detections_cloud(header, tracks), DETECTION_FIELDS)
+    assert cloud['y'][0] == pytest.approx(tracks[0].position[1], abs=1e-6)
+    assert poses_msg(header, tracks).poses[0].position.y == pytest.approx(tracks[0].position[1])
+
+
 def test_poses_face_the_walking_direction_and_ended_tracks_delete_their_markers():
     tracks = _tracks()
     header = Header(frame_id='map')
@@ -819,7 +872,7 @@ def _scored(frames):
     from st_stereo.tools.eval_people import PeopleTally
     tally = PeopleTally()
     for truth, estimates in frames:
-        tracks = [types.SimpleNamespace(state=np.array([x, y, 0.0, 0.0]), head_height=h,
+        tracks = [types.SimpleNamespace(position=np.array([x, y]), head_height=h,
                                         track_id=i, depth_spread_m=0.2)
                   for i, x, y, h in estimates]
         tally.add(list(range(len(truth))), np.array(truth).reshape(-1, 3), tracks)

@@ -23,8 +23,9 @@ The stages, each a pure function or a small state machine fed one pair at a time
    show: a second pass over the lower points finds them where they reach the top edge
    (``far_legs_min_height_m``), and ``warm_run_width_m`` tells legs from a radiator.
    Matches on a warm body lie on its outlines, often more on one side: once the legs are
-   tested, ``centred_on_silhouette`` moves each detection across the view to the middle of
-   its warm silhouette (``centre_on_silhouette``); the points give its depth.
+   tested, ``centred_on_silhouette`` measures each detection's shift across the view to
+   the middle of its warm silhouette (``centre_on_silhouette``); a published track's
+   ``position`` adds it (the points give the depth).
 4. ``PeopleTracker``: constant-velocity Kalman filter per person on the floor, detections
    assigned by ``scipy.optimize.linear_sum_assignment`` on the distance within a gate, ids that
    never repeat, a track confirmed after ``min_hits`` detections (or at once when its first
@@ -95,9 +96,10 @@ class PeopleConfig:
     cut_body_offset_m: float = _field(
         0.1, 'a body cut by the top edge (what is seen is its front): pushed this far back, m')
     centre_on_silhouette: bool = _field(
-        True, "a detection's position across the view is the middle of its warm silhouette "
-        '(per image row, the warm run holding its points), not the median of its points, '
-        'which lie mostly on one outline (needs the image and camera matrix)')
+        True, "a person's published position across the view is the middle of its warm "
+        'silhouette (per image row, the warm run holding its points), not the median of its '
+        'points, which lie mostly on one outline; tracking uses the points (needs the image '
+        'and camera matrix)')
     disparity_sigma_px: float = _field(
         0.15, 'disparity uncertainty of one point, for the position covariance, pixels')
     gate_m: float = _field(
@@ -272,6 +274,7 @@ class Detection:
     legs_seen: bool = False
     legs_under_head: bool = False  # not cut by the top edge, head high enough, on legs
     legs_only: bool = False       # cut by the top edge so far off that only its legs show
+    across: tuple = (0.0, 0.0)    # floor shift to its silhouette's middle (published only)
 
 
 class WarmBackground:
@@ -503,6 +506,8 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
 
 
 SILHOUETTE_MAX_WIDTH_M = 0.6   # wider than shoulders (0.5 m) and a pixel of blur each side
+SILHOUETTE_MIN_ROWS = 3         # fewer usable rows (a body at the image's side) move nothing
+SILHOUETTE_MAX_SLANT = 1.0      # |du/dv| of a vertical's image: steeper views cross bodies aslant
 
 
 def vertical_line_columns(floor_xy, rows, transform, intrinsics):
@@ -512,8 +517,8 @@ def vertical_line_columns(floor_xy, rows, transform, intrinsics):
     Two of its points (0 and 2 m high) go into the rectified left frame and onto the image;
     every point of the vertical plane through them and the camera centre lies on the same
     image line, so a position pushed along the horizontal viewing direction keeps its
-    column at a given row. NaN when either point is behind the camera or the line is
-    horizontal in the image.
+    column at a given row. Returns the columns and the line's slant ``du/dv``; NaN when
+    either point is behind the camera or the line is horizontal in the image.
     """
     rotation, translation = transform
     fx, fy, cx, cy = intrinsics
@@ -521,12 +526,28 @@ def vertical_line_columns(floor_xy, rows, transform, intrinsics):
     world = np.array([[floor_xy[0], floor_xy[1], 0.0], [floor_xy[0], floor_xy[1], 2.0]])
     camera = (world - translation) @ rotation
     if not (camera[:, 2] > 0).all():
-        return np.full(rows.shape, np.nan)
+        return np.full(rows.shape, np.nan), float('nan')
     u = fx * camera[:, 0] / camera[:, 2] + cx
     v = fy * camera[:, 1] / camera[:, 2] + cy
     if abs(v[1] - v[0]) < 1e-9:
-        return np.full(rows.shape, np.nan)
-    return u[0] + (rows - v[0]) * (u[1] - u[0]) / (v[1] - v[0])
+        return np.full(rows.shape, np.nan), float('nan')
+    slant = float((u[1] - u[0]) / (v[1] - v[0]))
+    return u[0] + (rows - v[0]) * slant, slant
+
+
+def warm_run(line, start, end):
+    """
+    Return the warm run of the row ``line`` (bool) holding ``start..end``, one-pixel gaps bridged.
+
+    From ``start`` left and from ``end`` right while the next pixel is warm, or cool with a
+    warm one after it (an arm or a leg one pixel apart from the body is the body's).
+    """
+    width = len(line)
+    while start > 0 and (line[start - 1] or (start > 1 and line[start - 2])):
+        start -= 1 if line[start - 1] else 2
+    while end < width - 1 and (line[end + 1] or (end < width - 2 and line[end + 2])):
+        end += 1 if line[end + 1] else 2
+    return start, end
 
 
 def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
@@ -535,11 +556,10 @@ def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
 
     On each image row holding the detection's points on warm pixels (``members`` of
     ``points``, rectified left frame n x 3, at left ``pixels`` n x 2) the warm run spanning
-    them is followed left and right while ``warm`` holds; ``depth`` is the median Z of those
-    points. Rows whose run reaches the image's side or a pixel without data (``valid``
-    False: the rectification's invalid border; the width beyond it is not seen) or is wider
-    than ``SILHOUETTE_MAX_WIDTH_M`` at that depth (two people side by side, a person before a
-    warm object) are left out.
+    them (``warm_run``); ``depth`` is the median Z of those points. Rows whose run reaches
+    the image's side or a pixel without data (``valid`` False: the rectification's invalid
+    border; the width beyond it is not seen) or is wider than ``SILHOUETTE_MAX_WIDTH_M`` at
+    that depth (two people side by side, a person before a warm object) are left out.
     """
     members = np.asarray(detection.members if detection.members is not None else [], int)
     if not len(members):
@@ -550,16 +570,12 @@ def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
     runs = {}
     for row in np.unique(rows[on]).tolist():
         here = on & (rows == row)
-        line = warm[row]
-        start, end = int(cols[here].min()), int(cols[here].max())
-        while start > 0 and line[start - 1]:
-            start -= 1
-        while end < width - 1 and line[end + 1]:
-            end += 1
+        start, end = warm_run(warm[row], int(cols[here].min()), int(cols[here].max()))
+        if start == 0 or end == width - 1 or \
+                (valid is not None and not (valid[row, start - 1] and valid[row, end + 1])):
+            continue
         depth = float(np.median(points[members[here], 2]))
-        seen = start > 0 and end < width - 1 and \
-            (valid is None or (valid[row, start - 1] and valid[row, end + 1]))
-        if seen and (end - start + 1) * depth / fx <= SILHOUETTE_MAX_WIDTH_M:
+        if (end - start + 1) * depth / fx <= SILHOUETTE_MAX_WIDTH_M:
             runs[row] = (start, end, depth)
     return runs
 
@@ -570,17 +586,37 @@ def silhouette_shift_xy(runs, detection, transform, intrinsics):
 
     Matches on a warm body lie on its outlines, often more on one side than the other, so
     the median of its points can sit up to half a body off its middle; the thermal image
-    shows the whole width. On each row of ``runs`` (``silhouette_runs``) the run's middle
-    less the column of the vertical at the detection's position (``vertical_line_columns``),
-    times the row's depth over ``fx``, is the shift along the camera's x axis there. Returns
-    the median over the rows, its horizontal part in the world, or None without a row.
+    shows the whole width. The shift is along the floor's direction ``n`` across the view
+    (horizontal, perpendicular to the horizontal viewing direction): on each row of ``runs``
+    (``silhouette_runs``) the run's middle less the column of the vertical at the
+    detection's position (``vertical_line_columns``), over how many columns the vertical
+    moves there per metre along ``n`` (from a second vertical 1 cm along it), is the shift
+    that puts the vertical through the middle (exact to first order, with roll too). Returns
+    the median over the rows times ``n``, or None with fewer than ``SILHOUETTE_MIN_ROWS``
+    rows or when the vertical's image is slanted more than ``SILHOUETTE_MAX_SLANT`` (a rig
+    looking steeply down: a row then crosses the body aslant).
     """
-    rows = sorted(runs)
-    lines = vertical_line_columns((detection.x, detection.y), rows, transform, intrinsics)
-    axis = np.asarray(transform[0], dtype=np.float64)[:2, 0]
-    shifts = [axis * (0.5 * (runs[row][0] + runs[row][1]) - line) * runs[row][2] /
-              intrinsics[0] for row, line in zip(rows, lines) if math.isfinite(line)]
-    return np.median(np.array(shifts), axis=0) if shifts else None
+    if len(runs) < SILHOUETTE_MIN_ROWS:
+        return None
+    rows = np.array(sorted(runs), dtype=np.float64)
+    centre = camera_centre_in_world(transform)
+    away = np.array([detection.x - centre[0], detection.y - centre[1]])
+    if not np.hypot(*away) > 1e-6:
+        return None
+    across = np.array([-away[1], away[0]]) / np.hypot(*away)
+    lines, slant = vertical_line_columns((detection.x, detection.y), rows, transform,
+                                         intrinsics)
+    moved, _ = vertical_line_columns((detection.x + 0.01 * across[0],
+                                      detection.y + 0.01 * across[1]), rows, transform,
+                                     intrinsics)
+    if not abs(slant) <= SILHOUETTE_MAX_SLANT:
+        return None
+    per_metre = (moved - lines) / 0.01
+    middles = np.array([0.5 * (runs[row][0] + runs[row][1]) for row in sorted(runs)])
+    usable = np.isfinite(per_metre) & (np.abs(per_metre) > 1e-6)
+    if not usable.any():
+        return None
+    return float(np.median((middles - lines)[usable] / per_metre[usable])) * across
 
 
 def shared_runs(runs, other):
@@ -594,41 +630,44 @@ def shared_runs(runs, other):
 def centred_on_silhouette(detections, warm, transform, intrinsics, points, pixels,
                           counts=None, valid=None):
     """
-    Return the detections moved across the view to their silhouettes' middles.
+    Return the detections, each with its shift across the view to its silhouette's middle.
+
+    The shift goes into ``Detection.across``, not into the position the tracker follows:
+    the gates, the travel a cut body must walk and the legs tests were chosen on the
+    points' positions, and a track's published ``position`` adds it.
 
     ``silhouette_runs`` and ``silhouette_shift_xy`` for each (the arguments are theirs;
-    ``valid``: the pixels with data, as ``WarmBackground`` takes them); one
-    without a usable row keeps its position. Strongest (most points) first: a detection half
-    or more of whose runs are a stronger one's (``shared_runs``: the same span on the same
-    row) is on that body's silhouette, a fragment of it (its points matched at another
-    depth: a cut body's often lie 0.4-0.8 m behind it), and is left out; on the same
-    bearing as the body once both are centred, its track would otherwise take the body's
-    detections. ``counts`` (a dict, optional) gains
-    ``silhouette_centred``, ``silhouette_not_found`` and ``silhouette_fragments``.
+    ``valid``: the pixels with data, as ``WarmBackground`` takes them); one without enough
+    usable rows is not shifted. Strongest (most points) first: a detection half or more of
+    whose runs are a stronger one's (``shared_runs``: the same span on the same row) is not
+    shifted either. The silhouette is the stronger one's: it may be a fragment of that body
+    (its points matched at another depth: a cut body's often lie 0.4-0.8 m behind it), or
+    another person partly behind it, whose own position is the points'. ``counts`` (a dict,
+    optional) gains ``silhouette_centred``, ``silhouette_not_found`` and
+    ``silhouette_shared``.
     """
     counts = {} if counts is None else counts
-    for key in ('silhouette_centred', 'silhouette_not_found', 'silhouette_fragments'):
+    for key in ('silhouette_centred', 'silhouette_not_found', 'silhouette_shared'):
         counts.setdefault(key, 0)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    order = sorted(range(len(detections)), key=lambda i: -detections[i].points)
-    kept, kept_runs = {}, []
-    for index in order:
+    out, stronger = list(detections), []
+    for index in sorted(range(len(detections)), key=lambda i: -detections[i].points):
         detection = detections[index]
         runs = silhouette_runs(warm, detection, intrinsics, points, pixels, valid)
-        if any(shared_runs(runs, other) >= 0.5 for other in kept_runs):
-            counts['silhouette_fragments'] += 1
+        shared = any(shared_runs(runs, other) >= 0.5 for other in stronger)
+        stronger.append(runs)
+        if shared:
+            counts['silhouette_shared'] += 1
             continue
-        shift = silhouette_shift_xy(runs, detection, transform, intrinsics) if runs else None
-        kept_runs.append(runs)
+        shift = silhouette_shift_xy(runs, detection, transform, intrinsics)
         if shift is None:
             counts['silhouette_not_found'] += 1
-            kept[index] = detection
             continue
         counts['silhouette_centred'] += 1
-        kept[index] = dataclasses.replace(detection, x=detection.x + float(shift[0]),
-                                          y=detection.y + float(shift[1]))
-    return [kept[index] for index in sorted(kept)]
+        out[index] = dataclasses.replace(detection, across=(float(shift[0]),
+                                                            float(shift[1])))
+    return out
 
 
 def top_edge_height_m(floor_xy, transform, intrinsics):
@@ -1026,6 +1065,18 @@ class Track:
                                 self.detection.y - self.start[1]))
 
     @property
+    def position(self):
+        """
+        Return the published floor position: x and y, metres.
+
+        The filtered state (the detections as found, on which the gates, the travel and the
+        legs tests work) moved across the view by the last detection's ``across``: the
+        middle of its warm silhouette (``centred_on_silhouette``).
+        """
+        shift = (0.0, 0.0) if self.detection is None else self.detection.across
+        return np.array([self.state[0] + shift[0], self.state[1] + shift[1]])
+
+    @property
     def position_covariance(self):
         """Return the 2x2 floor position covariance, m^2."""
         return self.covariance[:2, :2]
@@ -1311,7 +1362,7 @@ class PeopleEstimator:
                        'legs_only_detections': 0, 'legs_only_below_top': 0,
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
-                       'silhouette_fragments': 0}
+                       'silhouette_shared': 0, 'silhouette_not_checked': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -1367,12 +1418,14 @@ class PeopleEstimator:
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
-        if warm is not None and intrinsics is not None and self.config.centre_on_silhouette:
+        if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
             # After the legs tests: their windows were chosen around the points' median.
             image = np.asarray(left_image, dtype=np.float64)
             detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
                                                points[keep], pixels, self.counts,
                                                np.isfinite(image) & (image > 0))
+        elif self.config.centre_on_silhouette:     # no image or camera matrix: the points'
+            self.counts['silhouette_not_checked'] += len(detections)
         tracks = self.tracker.update(detections, stamp_s)
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))

@@ -43,7 +43,7 @@ def poses_msg(header, tracks):
     msg.header = header
     for track in tracks:
         pose = Pose()
-        pose.position.x, pose.position.y = float(track.state[0]), float(track.state[1])
+        pose.position.x, pose.position.y = (float(v) for v in track.position)
         _yaw_quaternion(pose, float(track.state[2]), float(track.state[3]))
         msg.poses.append(pose)
     return msg
@@ -54,7 +54,7 @@ def detection_rows(tracks):
     rows = np.zeros((len(tracks), len(DETECTION_FIELDS)), dtype='<f4')
     for row, track in zip(rows, tracks):
         cov = track.position_covariance
-        row[:] = (track.state[0], track.state[1], 0.0, track.track_id, track.state[2],
+        row[:] = (track.position[0], track.position[1], 0.0, track.track_id, track.state[2],
                   track.state[3], track.head_height, track.confidence, track.points,
                   cov[0, 0], cov[0, 1], cov[1, 1], float(track.head_visible))
     return rows
@@ -85,7 +85,7 @@ def markers_msg(header, tracks, ended):
         cylinder.header = header
         cylinder.ns, cylinder.id = 'people', int(track.track_id)
         cylinder.type, cylinder.action = Marker.CYLINDER, Marker.ADD
-        cylinder.pose.position.x, cylinder.pose.position.y = (float(v) for v in track.state[:2])
+        cylinder.pose.position.x, cylinder.pose.position.y = (float(v) for v in track.position)
         cylinder.pose.position.z = height / 2
         cylinder.pose.orientation.w = 1.0
         cylinder.scale.x = cylinder.scale.y = CYLINDER_DIAMETER_M
@@ -97,7 +97,7 @@ def markers_msg(header, tracks, ended):
         text.header = header
         text.ns, text.id = 'people_ids', int(track.track_id)
         text.type, text.action = Marker.TEXT_VIEW_FACING, Marker.ADD
-        text.pose.position.x, text.pose.position.y = (float(v) for v in track.state[:2])
+        text.pose.position.x, text.pose.position.y = (float(v) for v in track.position)
         text.pose.position.z = height + 0.2
         text.pose.orientation.w = 1.0
         text.scale.z = 0.25
@@ -129,8 +129,8 @@ def detection3d_msg(vision_msgs, header, tracks):
         detection.header = header
         detection.id = str(track.track_id)
         height = max(float(track.head_height) + 0.1, 0.2)
-        detection.bbox.center.position.x = float(track.state[0])
-        detection.bbox.center.position.y = float(track.state[1])
+        detection.bbox.center.position.x = float(track.position[0])
+        detection.bbox.center.position.y = float(track.position[1])
         detection.bbox.center.position.z = height / 2
         detection.bbox.center.orientation.w = 1.0
         detection.bbox.size.x = detection.bbox.size.y = CYLINDER_DIAMETER_M
@@ -138,8 +138,8 @@ def detection3d_msg(vision_msgs, header, tracks):
         hypothesis = vision_msgs.ObjectHypothesisWithPose()
         hypothesis.hypothesis.class_id = 'person'
         hypothesis.hypothesis.score = float(track.confidence)
-        hypothesis.pose.pose.position.x = float(track.state[0])
-        hypothesis.pose.pose.position.y = float(track.state[1])
+        hypothesis.pose.pose.position.x = float(track.position[0])
+        hypothesis.pose.pose.position.y = float(track.position[1])
         hypothesis.pose.pose.orientation.w = 1.0
         covariance = [0.0] * 36
         cov = track.position_covariance

@@ -82,7 +82,7 @@ class PeopleTally:
 
         ``head_seen``: per truth, whether its head centre is in the image (height scored).
         """
-        estimate = np.array([[t.state[0], t.state[1], t.head_height] for t in tracks]) \
+        estimate = np.array([[*t.position, t.head_height] for t in tracks]) \
             .reshape(-1, 3)
         truth = np.asarray(truth_heads, dtype=np.float64).reshape(-1, 3)
         hits = pair_estimates(truth[:, :2], estimate[:, :2])
