@@ -16,7 +16,8 @@ import pytest
 from st_stereo.core.people import (centred_on_silhouette, detect_people, Detection,
                                    legs_fraction, legs_only_bodies, PeopleConfig, PeopleEstimator,
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
-                                   standing_on_legs, top_edge_height_m, vertical_segment_rows,
+                                   silhouette_runs, silhouette_shift_xy, standing_on_legs,
+                                   top_edge_height_m, vertical_segment_rows,
                                    warm_column_gap_m, warm_run_width_m, WarmBackground,
                                    world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
@@ -569,6 +570,12 @@ def test_a_limb_a_pixel_apart_is_the_bodys_and_a_row_or_two_move_nothing():
                                       np.vstack([points, arm_points]),
                                       np.vstack([pixels, arm_pixels]))
     assert abs(_published(bridged)[0] - 0.4) <= 0.08       # the body's middle, and the arm's
+    # Most of its rows joined to a neighbour's (too wide): the few left do not decide.
+    runs, rows_with_points = silhouette_runs(warm, detection, intrinsics, points, pixels)
+    assert rows_with_points == len(runs) >= 10
+    assert silhouette_shift_xy(runs, detection, transform, intrinsics) is not None
+    assert silhouette_shift_xy(runs, detection, transform, intrinsics,
+                               rows_with_points=2 * len(runs) + 1) is None
     # Only two rows of the body in view hold its points: too little to go by.
     two = np.flatnonzero(np.isin(member_rows, rows[:2]))
     few = dataclasses.replace(detection, members=detection.members[two])

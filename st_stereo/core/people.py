@@ -507,6 +507,7 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
 
 SILHOUETTE_MAX_WIDTH_M = 0.6   # wider than shoulders (0.5 m) and a pixel of blur each side
 SILHOUETTE_MIN_ROWS = 3         # fewer usable rows (a body at the image's side) move nothing
+SILHOUETTE_MIN_USABLE = 0.5     # of the rows holding its points (else joined to a neighbour)
 SILHOUETTE_MAX_SLANT = 1.0      # |du/dv| of a vertical's image: steeper views cross bodies aslant
 
 
@@ -552,7 +553,10 @@ def warm_run(line, start, end):
 
 def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
     """
-    Return the warm runs across a detection's body: ``{row: (start, end, depth)}``.
+    Return the warm runs across a detection's body and the rows that hold its points.
+
+    ``({row: (start, end, depth)}, rows)``: ``rows`` counts every row holding the
+    detection's points on warm pixels, the runs only those usable.
 
     On each image row holding the detection's points on warm pixels (``members`` of
     ``points``, rectified left frame n x 3, at left ``pixels`` n x 2) the warm run spanning
@@ -563,12 +567,12 @@ def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
     """
     members = np.asarray(detection.members if detection.members is not None else [], int)
     if not len(members):
-        return {}
+        return {}, 0
     rows, cols, inside = pixel_indices(warm.shape, pixels[members, 0], pixels[members, 1])
     on = inside & warm[rows, cols]
     fx, width = intrinsics[0], warm.shape[1]
-    runs = {}
-    for row in np.unique(rows[on]).tolist():
+    runs, candidates = {}, np.unique(rows[on]).tolist()
+    for row in candidates:
         here = on & (rows == row)
         start, end = warm_run(warm[row], int(cols[here].min()), int(cols[here].max()))
         if start == 0 or end == width - 1 or \
@@ -577,10 +581,10 @@ def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
         depth = float(np.median(points[members[here], 2]))
         if (end - start + 1) * depth / fx <= SILHOUETTE_MAX_WIDTH_M:
             runs[row] = (start, end, depth)
-    return runs
+    return runs, len(candidates)
 
 
-def silhouette_shift_xy(runs, detection, transform, intrinsics):
+def silhouette_shift_xy(runs, detection, transform, intrinsics, rows_with_points=None):
     """
     Floor shift ``(dx, dy)`` of a detection across the view to its warm silhouette's middle.
 
@@ -593,10 +597,13 @@ def silhouette_shift_xy(runs, detection, transform, intrinsics):
     moves there per metre along ``n`` (from a second vertical 1 cm along it), is the shift
     that puts the vertical through the middle (exact to first order, with roll too). Returns
     the median over the rows times ``n``, or None with fewer than ``SILHOUETTE_MIN_ROWS``
-    rows or when the vertical's image is slanted more than ``SILHOUETTE_MAX_SLANT`` (a rig
-    looking steeply down: a row then crosses the body aslant).
+    rows or fewer than ``SILHOUETTE_MIN_USABLE`` of the ``rows_with_points`` (most of its
+    rows joined to a neighbour's, through a one-pixel gap or by touching: the few left, the
+    narrowest joins, would decide), or when the vertical's image is slanted more than
+    ``SILHOUETTE_MAX_SLANT`` (a rig looking steeply down: a row crosses the body aslant).
     """
-    if len(runs) < SILHOUETTE_MIN_ROWS:
+    if len(runs) < SILHOUETTE_MIN_ROWS or (
+            rows_with_points and len(runs) < SILHOUETTE_MIN_USABLE * rows_with_points):
         return None
     rows = np.array(sorted(runs), dtype=np.float64)
     centre = camera_centre_in_world(transform)
@@ -654,13 +661,14 @@ def centred_on_silhouette(detections, warm, transform, intrinsics, points, pixel
     out, stronger = list(detections), []
     for index in sorted(range(len(detections)), key=lambda i: -detections[i].points):
         detection = detections[index]
-        runs = silhouette_runs(warm, detection, intrinsics, points, pixels, valid)
+        runs, rows_with_points = silhouette_runs(warm, detection, intrinsics, points, pixels,
+                                                 valid)
         shared = any(shared_runs(runs, other) >= 0.5 for other in stronger)
         stronger.append(runs)
         if shared:
             counts['silhouette_shared'] += 1
             continue
-        shift = silhouette_shift_xy(runs, detection, transform, intrinsics)
+        shift = silhouette_shift_xy(runs, detection, transform, intrinsics, rows_with_points)
         if shift is None:
             counts['silhouette_not_found'] += 1
             continue
