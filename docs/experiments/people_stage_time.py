@@ -1,11 +1,12 @@
 """
-What the people stage's first-detection, legs-only and warm-object mechanisms cost (issue 16).
+What the people stage's first-detection, legs-only, warm-object and silhouette mechanisms cost.
 
-Every pair of two tuning sequences goes through the matcher as ``st-stereo eval people``
+Every pair of three tuning sequences goes through the matcher as ``st-stereo eval people``
 does (each camera at its own instant, the skew corrected); the matcher's outputs are kept,
 then ``PeopleEstimator.process`` alone is timed on them with the first two mechanisms off,
-``confirm_on_legs`` only, the defaults without the warm-object rule (``object_min_hits`` 0)
-and the defaults, one after the other in one process (a second round is reported, the first
+``confirm_on_legs`` only, the defaults without the warm-object rule (``object_min_hits`` 0),
+the defaults without the silhouette's shift (``centre_on_silhouette`` false) and the
+defaults, one after the other in one process (a second round is reported, the first
 warms the caches). One core, prints a Markdown table.
 Run: ``.venv/bin/python docs/experiments/people_stage_time.py``.
 """
@@ -23,6 +24,7 @@ CONFIGURATIONS = {
     'both off': PeopleConfig(confirm_on_legs=False, far_legs_min_height_m=0.0),
     'confirm_on_legs only': PeopleConfig(far_legs_min_height_m=0.0),
     'defaults but object_min_hits 0': PeopleConfig(object_min_hits=0),
+    'defaults but centre_on_silhouette false': PeopleConfig(centre_on_silhouette=False),
     'defaults': PeopleConfig(),
 }
 

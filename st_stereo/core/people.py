@@ -506,7 +506,7 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
 
 
 SILHOUETTE_MAX_WIDTH_M = 0.6   # wider than shoulders (0.5 m) and a pixel of blur each side
-SILHOUETTE_MIN_ROWS = 3         # fewer usable rows (a body at the image's side) move nothing
+SILHOUETTE_MIN_ROWS = 2         # one usable row (a body at the image's side) moves nothing
 SILHOUETTE_MIN_USABLE = 0.5     # of the rows holding its points (else joined to a neighbour)
 SILHOUETTE_MAX_SLANT = 1.0      # |du/dv| of a vertical's image: steeper views cross bodies aslant
 
