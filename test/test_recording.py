@@ -178,3 +178,5 @@ def test_the_main_job_runs_the_suite_on_the_bundled_recording():
     assert 'pair skew (from pair_info): |skew| median 33.' in out
     corrected = int(out.split('skew compensation: ')[1].split(' pairs corrected')[0])
     assert corrected >= 100
+    # The people topics scored against the true heads (at the published positions).
+    assert 'people against the truth (139 pairs' in out
