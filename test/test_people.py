@@ -1008,3 +1008,11 @@ def test_eval_people_places_people_with_the_rig_pose_it_is_given():
     wrong = evaluate_sequence(spec, textures=textures, max_pairs=6, rig_pose=turned)
     assert truth.hits >= 8 and wrong.estimates == truth.estimates
     assert wrong.hits == 0
+
+
+def test_the_silhouettes_short_median_is_numpys_bit_for_bit():
+    from st_stereo.core.people import _median
+    rng = np.random.default_rng(3)
+    for count in range(1, 30):
+        values = rng.normal(4.5, 0.3, count)
+        assert _median(values) == float(np.median(values))

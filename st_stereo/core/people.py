@@ -551,6 +551,13 @@ def warm_run(line, start, end):
     return start, end
 
 
+def _median(values):
+    """Return ``np.median`` of a short 1-D array, bit for bit, without its per-call cost."""
+    ordered = np.sort(values)
+    count = len(ordered)
+    return float(0.5 * (ordered[(count - 1) // 2] + ordered[count // 2]))
+
+
 def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
     """
     Return the warm runs across a detection's body and the rows that hold its points.
@@ -571,17 +578,20 @@ def silhouette_runs(warm, detection, intrinsics, points, pixels, valid=None):
     rows, cols, inside = pixel_indices(warm.shape, pixels[members, 0], pixels[members, 1])
     on = inside & warm[rows, cols]
     fx, width = intrinsics[0], warm.shape[1]
-    runs, candidates = {}, np.unique(rows[on]).tolist()
-    for row in candidates:
-        here = on & (rows == row)
-        start, end = warm_run(warm[row], int(cols[here].min()), int(cols[here].max()))
+    held = np.flatnonzero(on)
+    held = held[np.argsort(rows[held], kind='stable')]
+    groups = np.split(held, np.flatnonzero(np.diff(rows[held])) + 1) if len(held) else []
+    runs = {}
+    for here in groups:                 # the points on one row, per row in order
+        row, columns = int(rows[here[0]]), cols[here].tolist()
+        start, end = warm_run(warm[row], min(columns), max(columns))
         if start == 0 or end == width - 1 or \
                 (valid is not None and not (valid[row, start - 1] and valid[row, end + 1])):
             continue
-        depth = float(np.median(points[members[here], 2]))
+        depth = _median(points[members[here], 2])
         if (end - start + 1) * depth / fx <= SILHOUETTE_MAX_WIDTH_M:
             runs[row] = (start, end, depth)
-    return runs, len(candidates)
+    return runs, len(groups)
 
 
 def silhouette_shift_xy(runs, detection, transform, intrinsics, rows_with_points=None):
