@@ -293,6 +293,7 @@ class WarmBackground:
     def __init__(self, config=None):
         self.config = config or PeopleConfig()
         self.background = None
+        self.valid = None            # the last image's pixels with data
         self.stamp_s = None
         self.frames = 0
 
@@ -307,6 +308,7 @@ class WarmBackground:
         """
         image = np.asarray(image, dtype=np.float64)
         valid = np.isfinite(image) & (image > 0)
+        self.valid = valid
         if self.background is None or self.background.shape != image.shape:
             level = float(np.median(image[valid])) if valid.any() else 0.0
             self.background = np.full(image.shape, level)
@@ -494,11 +496,8 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
         hot = np.flatnonzero(warm[row, low:high + 1]) + low
         if not len(hot):
             continue
-        start = end = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
-        while start > 0 and warm[row, start - 1]:
-            start -= 1
-        while end < warm.shape[1] - 1 and warm[row, end + 1]:
-            end += 1
+        middle = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
+        start, end = warm_run(warm[row], middle, middle, bridge=False)
         if start == 0 or end == warm.shape[1] - 1:
             return float('nan')
         widths.append((end - start + 1) * depth / fx)
@@ -536,17 +535,18 @@ def vertical_line_columns(floor_xy, rows, transform, intrinsics):
     return u[0] + (rows - v[0]) * slant, slant
 
 
-def warm_run(line, start, end):
+def warm_run(line, start, end, bridge=True):
     """
-    Return the warm run of the row ``line`` (bool) holding ``start..end``, one-pixel gaps bridged.
+    Return the warm run of the row ``line`` (bool) holding ``start..end``: its first and last.
 
-    From ``start`` left and from ``end`` right while the next pixel is warm, or cool with a
-    warm one after it (an arm or a leg one pixel apart from the body is the body's).
+    From ``start`` left and from ``end`` right while the next pixel is warm, or, with
+    ``bridge``, cool with a warm one after it (an arm or a leg one pixel apart from the body
+    is the body's).
     """
     width = len(line)
-    while start > 0 and (line[start - 1] or (start > 1 and line[start - 2])):
+    while start > 0 and (line[start - 1] or (bridge and start > 1 and line[start - 2])):
         start -= 1 if line[start - 1] else 2
-    while end < width - 1 and (line[end + 1] or (end < width - 2 and line[end + 2])):
+    while end < width - 1 and (line[end + 1] or (bridge and end < width - 2 and line[end + 2])):
         end += 1 if line[end + 1] else 2
     return start, end
 
@@ -1438,10 +1438,9 @@ class PeopleEstimator:
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
         if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
             # After the legs tests: their windows were chosen around the points' median.
-            image = np.asarray(left_image, dtype=np.float64)
             detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
                                                points[keep], pixels, self.counts,
-                                               np.isfinite(image) & (image > 0))
+                                               self.background.valid)
         elif self.config.centre_on_silhouette:     # no image or camera matrix: the points'
             self.counts['silhouette_not_checked'] += len(detections)
         tracks = self.tracker.update(detections, stamp_s)

@@ -54,7 +54,8 @@ def detection_rows(tracks):
     rows = np.zeros((len(tracks), len(DETECTION_FIELDS)), dtype='<f4')
     for row, track in zip(rows, tracks):
         cov = track.position_covariance
-        row[:] = (track.position[0], track.position[1], 0.0, track.track_id, track.state[2],
+        x, y = track.position
+        row[:] = (x, y, 0.0, track.track_id, track.state[2],
                   track.state[3], track.head_height, track.confidence, track.points,
                   cov[0, 0], cov[0, 1], cov[1, 1], float(track.head_visible))
     return rows

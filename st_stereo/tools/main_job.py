@@ -199,8 +199,7 @@ def print_people_truth(monitor, truth, people):
         index = int(np.argmin(np.abs(stamps - stamp)))
         if abs(int(stamps[index]) - stamp) > 1000:
             continue
-        tracks = [types.SimpleNamespace(position=row[[0, 1]], state=row[[0, 1, 4, 5]],
-                                        head_height=float(row[6]),
+        tracks = [types.SimpleNamespace(position=row[[0, 1]], head_height=float(row[6]),
                                         track_id=int(row[3]), depth_spread_m=float('nan'))
                   for row in monitor.people[stamp]]
         heads = np.asarray(truth['heads_world'][index])
