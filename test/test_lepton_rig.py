@@ -45,7 +45,8 @@ FLOW_RATE = 2.0 if STRICT else 1.0
 RESUME_S = 2.0 if STRICT else 6.0
 
 
-def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_FRAME_PERIOD_S, wall_stamps=True):
+def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_FRAME_PERIOD_S, wall_stamps=True,
+                  interrupted_at=None):
     """
     ``check_stream`` with the mode's timing: stamp accuracy and pair skew bound in strict.
 
@@ -54,8 +55,9 @@ def stream_checks(got, sent, min_rate, window, max_skew_s=UNIQUE_FRAME_PERIOD_S,
     """
     if STRICT and wall_stamps:
         return check_stream(got, sent, min_rate, window, time.time() - time.monotonic(),
-                            max_skew_s=max_skew_s + STAMP_TOLERANCE_S)
-    return check_stream(got, sent, min_rate, window)
+                            max_skew_s=max_skew_s + STAMP_TOLERANCE_S,
+                            interrupted_at=interrupted_at)
+    return check_stream(got, sent, min_rate, window, interrupted_at=interrupted_at)
 
 
 def spin_with_events(executor, seconds, events=()):
@@ -212,7 +214,8 @@ def test_stereo_pipeline_on_spi_keeps_both_cameras_in_sync_with_the_matcher_runn
         assert process.returncode == 0, stderr[-2000:]
         # Discovery takes a moment: judge from the first pair received.
         first = min(t for t, _ in subscriber.got.arrivals)
-        rate = stream_checks(subscriber.got, sent, MIN_RATE, (first + 2.0, end), 0.05)
+        rate = stream_checks(subscriber.got, sent, MIN_RATE, (first + 2.0, end), 0.05,
+                             interrupted_at=end)
         matched = [t for t in clouds if first + 2.0 <= t <= end]
         cloud_rate = len(matched) / (end - first - 2.0)
         assert cloud_rate >= (MIN_RATE - 0.5 if STRICT else FLOW_RATE), 'the matcher fell behind'
