@@ -1,6 +1,7 @@
 """rclpy helpers shared by the tests that run nodes: a private context and spinning."""
 
 import contextlib
+import threading
 import time
 
 import rclpy
@@ -77,6 +78,18 @@ def ideal_camera_info(tx, header=None, width=80, height=60):
     info.distortion_model = 'plumb_bob'
     info.p = [83.9, 0.0, 39.5, tx, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
     return info
+
+
+class GatedMatch:
+    """Wraps StereoMatcher.match: the first call waits until ``release`` (a slow matcher)."""
+
+    def __init__(self, match):
+        self.match, self.entered, self.gate = match, threading.Event(), threading.Event()
+
+    def __call__(self, *args, **kwargs):
+        self.entered.set()
+        self.gate.wait(60.0)
+        return self.match(*args, **kwargs)
 
 
 class RectifiedPairs(Node):

@@ -5,7 +5,6 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .c
 """
 
 import os
-import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -13,7 +12,7 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from ros_helpers import ideal_camera_info, keep_statuses, spin_until
+from ros_helpers import GatedMatch, ideal_camera_info, keep_statuses, spin_until
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.calibration.files import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
@@ -293,18 +292,6 @@ def _textured_pair(stamp_sec):
 def _feed(matcher, messages):
     for index, msg in enumerate(messages):
         matcher.sync.add(index, msg)
-
-
-class GatedMatch:
-    """Wraps StereoMatcher.match: the first call waits until ``release`` (a slow matcher)."""
-
-    def __init__(self, match):
-        self.match, self.entered, self.gate = match, threading.Event(), threading.Event()
-
-    def __call__(self, *args, **kwargs):
-        self.entered.set()
-        self.gate.wait(60.0)
-        return self.match(*args, **kwargs)
 
 
 def test_a_slow_matcher_drops_stale_pairs_counted_and_publishes_the_newest(ros):

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 import ros_helpers
-from ros_helpers import new_context, spin_for, spin_until_finished
+from ros_helpers import GatedMatch, new_context, spin_for, spin_until_finished
 from st_stereo.lepton.pairing import pair_info_values, pair_times_from_values, stamp_text
 from st_stereo.nodes import diagnostics
 from st_stereo.nodes.driver_node import DriverNode
@@ -128,10 +128,16 @@ class RectifiedPairs(ros_helpers.RectifiedPairs):
         super().__init__(context)
         self.pair_info = self.create_publisher(DiagnosticArray, 'pair_info', RELIABLE)
 
-    def publish_pair_info(self, sec, skew_s):
+    def publish_pair_info(self, sec, skew_s, left_time_s=None):
+        """
+        Publish pair ``sec``'s pair_info, the right camera ``skew_s`` after the left one.
+
+        ``left_time_s``: the left acquisition (default: the stamp is the pair's midpoint).
+        """
+        left_time_s = sec - skew_s / 2 if left_time_s is None else left_time_s
         array = DiagnosticArray()
         array.header.stamp.sec = sec
-        values = pair_info_values(skew_s, (sec - skew_s / 2, sec + skew_s / 2), (sec, sec),
+        values = pair_info_values(skew_s, (left_time_s, left_time_s + skew_s), (sec, sec),
                                   (False, False))
         array.status = [diagnostics.status('test: stereo pair', 'test', diagnostics.OK, 'ok',
                                            values)]
@@ -163,12 +169,7 @@ def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80
         for sec in (2, 3):
             source.publish_images(sec, left, right)
             spin_for(executor, 0.03)
-            array = DiagnosticArray()
-            array.header.stamp.sec = sec
-            values = pair_info_values(0.03, (1.0 + (sec - 1) / 8.7, 1.03 + (sec - 1) / 8.7),
-                                      (sec, sec), (False, False))
-            array.status = [diagnostics.status('t', 't', diagnostics.OK, 'ok', values)]
-            source.pair_info.publish(array)
+            source.publish_pair_info(sec, 0.03, left_time_s=1.0 + (sec - 1) / 8.7)
             spin_for(executor, 0.5)
         source.publish_images(4, left, right)
         deadline = time.monotonic() + 10.0
@@ -182,6 +183,52 @@ def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80
         assert counts['pairs_skew_compensated'] == 2
         assert counts['pairs_without_previous'] == 1
         assert counts['pairs_without_skew'] == 1
+        assert matcher.counts['stale_kept_for_skew'] == 0       # nothing was dropped
+    finally:
+        for node in (source, matcher):
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.timeout(120)
+def test_a_pair_dropped_as_stale_still_serves_the_skew_compensation(people_80x60):
+    # Would catch: a slow matcher (a small ARM board) that drops pairs measuring the motion
+    # over two or more periods, or, beyond max_period_s (0.25 s), not compensating at all.
+    context, executor = new_context()
+    source = RectifiedPairs(context)
+    matcher = MatcherNode(context=context, parameter_overrides=[
+        Parameter('pair_info_wait', value=2.0)])
+    gated = GatedMatch(matcher.matcher.match)
+    matcher.matcher.match = gated
+    texture = (7800 + (people_80x60 - people_80x60.min()) * 800 / np.ptp(people_80x60))
+    left = texture.astype(np.uint16)
+    right = np.roll(texture, -5, axis=1).astype(np.uint16)
+    # Left acquisitions: pair 1 at 1.0 s, pair 2 at 1.2 s, pair 3 one period later; 1 -> 3 is
+    # beyond max_period_s, 2 -> 3 is not.
+    times = {1: 1.0, 2: 1.2, 3: 1.2 + 1 / 8.7}
+    try:
+        for node in (source, matcher):
+            executor.add_node(node)
+        spin_for(executor, 1.0)                        # discovery
+        for sec in (1, 2, 3):
+            source.publish_pair_info(sec, 0.03, left_time_s=times[sec])
+            spin_for(executor, 0.2)
+            source.publish_images(sec, left, right)
+            spin_for(executor, 0.3)
+            if sec == 1:
+                assert gated.entered.wait(30.0)        # pair 1 is being matched (slowly)
+        assert matcher.counts['dropped_stale'] == 1    # pair 2, replaced by pair 3
+        gated.gate.set()
+        deadline = time.monotonic() + 30.0
+        while matcher.counts['matched'] < 2 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        assert matcher.counts['matched'] == 2
+        assert matcher.counts['stale_kept_for_skew'] == 1
+        counts = matcher.skew.counts
+        # Pair 1 has no previous frames; pair 3 is compensated against pair 2's.
+        assert counts['pairs_without_previous'] == 1
+        assert counts['pairs_skew_compensated'] == 1
+        assert matcher.skew.previous_time == pytest.approx(times[3])
     finally:
         for node in (source, matcher):
             node.destroy_node()

@@ -92,7 +92,7 @@ class MatcherNode(Node):
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'dropped_stale': 0,
                        'dropped_internal_error': 0, 'dropped_at_shutdown': 0, 'empty_clouds': 0,
                        'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
-                       'stamps_not_on_node_clock': 0}
+                       'stamps_not_on_node_clock': 0, 'stale_kept_for_skew': 0}
         self._pair_times_lock = threading.Lock()
         self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
@@ -116,6 +116,8 @@ class MatcherNode(Node):
         self.latencies = []
         self.create_timer(1.0, self._publish_diagnostics)
         self._slot = None
+        self._last_submitted = None  # the pair handed over last, and the one taken last
+        self._last_taken = None
         if self.get_parameter('keep_latest').value:
             self._slot = LatestSlot()
             self._worker = threading.Thread(target=self._work, name='matcher', daemon=True)
@@ -132,15 +134,23 @@ class MatcherNode(Node):
         if self._slot is None:
             self._match_pair(*messages)
             return
-        self._slot.put(messages)
+        # Each pair travels with the one handed over before it: if that one is dropped as
+        # stale, the worker still gives its images to the skew compensation.
+        self._slot.put((messages, self._last_submitted))
+        self._last_submitted = messages
         self.counts['dropped_stale'] = self._slot.replaced
 
     def _work(self):
         while True:
-            messages = self._slot.take()
-            if messages is None:
+            item = self._slot.take()
+            if item is None:
                 return
+            messages, before = item
+            skipped = before is not None and before is not self._last_taken
+            self._last_taken = messages
             try:
+                if skipped:
+                    self._keep_skipped_for_skew(*before)
                 self._match_pair(*messages)
             except Exception as error:  # noqa: B902 - the thread must outlive any one pair
                 # Inline, such an error would end the node; here it would end the thread
@@ -212,6 +222,35 @@ class MatcherNode(Node):
         # next pair has no usable previous time either.
         with self._pair_times_lock:
             return self.pair_times.pop(_stamp_key(msg), (None, None, (False, False)))
+
+    def _keep_skipped_for_skew(self, left_msg, right_msg, left_info, right_info, _arrival):
+        """
+        Give a pair dropped as stale to the skew compensation as its previous frames.
+
+        The compensation tracks each moving feature from the previous pair's images to this
+        pair's (``SkewCompensator``). When the matcher is slower than the cameras it drops the
+        pairs between two it matches; without their images the motion would be measured over
+        two or more periods, which halves the fastest motion tracked, and beyond its
+        ``max_period_s`` (0.25 s) not at all. The pair received just before the one about to
+        be matched is one period older: its images are kept instead (counted:
+        ``stale_kept_for_skew``), with its pair_info. A pair whose images cannot be read is
+        not kept (the previous frames stay the last matched pair's).
+        """
+        pair_times = self._pair_times_of(left_msg)
+        if not self.matcher.config.skew_compensation:
+            return
+        try:
+            left = conversions.msg_to_image(left_msg)
+            right = conversions.msg_to_image(right_msg)
+            if left.shape != (left_info.height, left_info.width) or \
+                    right.shape != (right_info.height, right_info.width):
+                return
+            model = self._model_for(left_info, right_info)
+        except ValueError:
+            return
+        left_time, skew, ffc = pair_times
+        self.skew.remember(left, left_time, right, skew, model, ffc)
+        self.counts['stale_kept_for_skew'] += 1
 
     def _compensate_skew(self, result, left, right, pair_times, model, bounds, config):
         left_time, skew, ffc = pair_times
