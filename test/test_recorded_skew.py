@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 import ros_helpers
-from ros_helpers import GatedMatch, new_context, spin_for, spin_until_finished
+from ros_helpers import GatedMatch, new_context, spin_for, spin_until, spin_until_finished
 from st_stereo.lepton.pairing import pair_info_values, pair_times_from_values, stamp_text
 from st_stereo.nodes import diagnostics
 from st_stereo.nodes.driver_node import DriverNode
@@ -191,9 +191,11 @@ def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80
 
 
 @pytest.mark.timeout(120)
-def test_a_pair_dropped_as_stale_still_serves_the_skew_compensation(people_80x60):
+@pytest.mark.parametrize('pair_2_info', [True, False], ids=['pair_info', 'no_pair_info'])
+def test_a_pair_dropped_as_stale_still_serves_the_skew_compensation(people_80x60, pair_2_info):
     # Would catch: a slow matcher (a small ARM board) that drops pairs measuring the motion
-    # over two or more periods, or, beyond max_period_s (0.25 s), not compensating at all.
+    # over two or more periods, or, beyond max_period_s (0.25 s), not compensating at all; and
+    # a dropped pair without its pair_info erasing a previous pair that is still usable.
     context, executor = new_context()
     source = RectifiedPairs(context)
     matcher = MatcherNode(context=context, parameter_overrides=[
@@ -203,29 +205,34 @@ def test_a_pair_dropped_as_stale_still_serves_the_skew_compensation(people_80x60
     texture = (7800 + (people_80x60 - people_80x60.min()) * 800 / np.ptp(people_80x60))
     left = texture.astype(np.uint16)
     right = np.roll(texture, -5, axis=1).astype(np.uint16)
-    # Left acquisitions: pair 1 at 1.0 s, pair 2 at 1.2 s, pair 3 one period later; 1 -> 3 is
-    # beyond max_period_s, 2 -> 3 is not.
-    times = {1: 1.0, 2: 1.2, 3: 1.2 + 1 / 8.7}
+    # Left acquisitions. With pair 2's pair_info: 1 -> 3 is beyond max_period_s, 2 -> 3 one
+    # period. Without it, pair 2 has no time: 1 -> 3 (two periods) must still serve.
+    times = {1: 1.0, 2: 1.2, 3: 1.2 + 1 / 8.7} if pair_2_info else {1: 1.0, 3: 1.0 + 2 / 8.7}
     try:
         for node in (source, matcher):
             executor.add_node(node)
         spin_for(executor, 1.0)                        # discovery
         for sec in (1, 2, 3):
-            source.publish_pair_info(sec, 0.03, left_time_s=times[sec])
-            spin_for(executor, 0.2)
+            if sec in times:
+                source.publish_pair_info(sec, 0.03, left_time_s=times[sec])
+                spin_for(executor, 0.2)
             source.publish_images(sec, left, right)
-            spin_for(executor, 0.3)
             if sec == 1:
                 assert gated.entered.wait(30.0)        # pair 1 is being matched (slowly)
-        assert matcher.counts['dropped_stale'] == 1    # pair 2, replaced by pair 3
+        # Pair 2 (waiting for a pair_info that never comes, or not) is handed over when pair
+        # 3 arrives, and replaced by it.
+        spin_until(executor, lambda: matcher.counts['pairs'] == 3 and
+                   matcher._waiting is None, 20.0)
+        assert matcher.counts['dropped_stale'] == 1
         gated.gate.set()
-        deadline = time.monotonic() + 30.0
-        while matcher.counts['matched'] < 2 and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
+        spin_until(executor, lambda: matcher.counts['matched'] == 2, 30.0)
         assert matcher.counts['matched'] == 2
-        assert matcher.counts['stale_kept_for_skew'] == 1
+        kept = (matcher.counts['stale_kept_for_skew'],
+                matcher.counts['stale_not_kept_for_skew'])
+        assert kept == ((1, 0) if pair_2_info else (0, 1))
         counts = matcher.skew.counts
-        # Pair 1 has no previous frames; pair 3 is compensated against pair 2's.
+        # Pair 1 has no previous frames; pair 3 is compensated against pair 2's, or, without
+        # them, against pair 1's.
         assert counts['pairs_without_previous'] == 1
         assert counts['pairs_skew_compensated'] == 1
         assert matcher.skew.previous_time == pytest.approx(times[3])

@@ -92,7 +92,8 @@ class MatcherNode(Node):
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'dropped_stale': 0,
                        'dropped_internal_error': 0, 'dropped_at_shutdown': 0, 'empty_clouds': 0,
                        'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
-                       'stamps_not_on_node_clock': 0, 'stale_kept_for_skew': 0}
+                       'stamps_not_on_node_clock': 0, 'stale_kept_for_skew': 0,
+                       'stale_not_kept_for_skew': 0}
         self._pair_times_lock = threading.Lock()
         self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
@@ -146,11 +147,10 @@ class MatcherNode(Node):
             if item is None:
                 return
             messages, before = item
-            skipped = before is not None and before is not self._last_taken
+            if before is not None and before is not self._last_taken:
+                self._keep_skipped_for_skew(*before)
             self._last_taken = messages
             try:
-                if skipped:
-                    self._keep_skipped_for_skew(*before)
                 self._match_pair(*messages)
             except Exception as error:  # noqa: B902 - the thread must outlive any one pair
                 # Inline, such an error would end the node; here it would end the thread
@@ -233,23 +233,32 @@ class MatcherNode(Node):
         two or more periods, which halves the fastest motion tracked, and beyond its
         ``max_period_s`` (0.25 s) not at all. The pair received just before the one about to
         be matched is one period older: its images are kept instead (counted:
-        ``stale_kept_for_skew``), with its pair_info. A pair whose images cannot be read is
-        not kept (the previous frames stay the last matched pair's).
+        ``stale_kept_for_skew``), with its pair_info. One without its pair_info (no
+        acquisition time) or whose images cannot be read is not kept, and counted
+        (``stale_not_kept_for_skew``): the previous frames stay the last matched pair's, used
+        when they are recent enough. Never raises: the pair after it is matched whatever
+        happens here. The dropped pair's FFC flags reach the temporal check too (a frozen
+        frame between two matched pairs makes them look static).
         """
         pair_times = self._pair_times_of(left_msg)
+        left_time, skew, ffc = pair_times
+        if any(ffc):
+            self.temporal.previous_ffc = True
         if not self.matcher.config.skew_compensation:
             return
         try:
+            if left_time is None:
+                raise ValueError('no pair_info')
             left = conversions.msg_to_image(left_msg)
             right = conversions.msg_to_image(right_msg)
             if left.shape != (left_info.height, left_info.width) or \
                     right.shape != (right_info.height, right_info.width):
-                return
+                raise ValueError('image and camera_info sizes differ')
             model = self._model_for(left_info, right_info)
-        except ValueError:
+            self.skew.remember(left, left_time, right, skew, model, ffc)
+        except Exception:  # noqa: B902 - never costs the pair matched next
+            self.counts['stale_not_kept_for_skew'] += 1
             return
-        left_time, skew, ffc = pair_times
-        self.skew.remember(left, left_time, right, skew, model, ffc)
         self.counts['stale_kept_for_skew'] += 1
 
     def _compensate_skew(self, result, left, right, pair_times, model, bounds, config):
