@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 from st_stereo.core.calibration.target_refinement import (
-    blurred_ellipse, ellipse_matrix, refine_chessboard_corners, refine_circle_centres)
+    blurred_ellipse, compiled_blurred_ellipse, ellipse_matrix, refine_chessboard_corners,
+    refine_circle_centres)
 
 OVERSAMPLE = 12
 
@@ -88,3 +89,22 @@ def test_ellipse_parameters_always_give_a_positive_definite_matrix():
     values = blurred_ellipse(np.array([[5.0, 5.0, np.log(3.0), 0, 0, np.log(0.5), 100, 10]]),
                              np.array([[5.0, 20.0]]), np.array([[5.0, 5.0]]))
     np.testing.assert_allclose(values, [[110.0, 10.0]], atol=1e-3)
+
+
+def test_the_compiled_ellipse_model_is_the_numpy_reference():
+    # Would catch the kernel drifting from the reference (a formula or a sum changed in one).
+    rng = np.random.default_rng(5)
+    count, pixels = 40, 81
+    params = np.column_stack([rng.uniform(0, 8, count), rng.uniform(0, 8, count),
+                              rng.uniform(-0.7, 2.0, count), rng.uniform(-1.1, 1.1, count),
+                              rng.uniform(-1.1, 1.1, count), rng.uniform(-1.6, 0.9, count),
+                              rng.uniform(-50, 200, count), rng.uniform(0, 1e4, count)])
+    xs = rng.integers(0, 9, (count, pixels)).astype(float)
+    ys = rng.integers(0, 9, (count, pixels)).astype(float)
+    np.testing.assert_allclose(compiled_blurred_ellipse(params, xs, ys),
+                               blurred_ellipse(params, xs, ys), rtol=1e-13, atol=0)
+    truth, image = circle_grid((10.3, 9.6), 6.0, 1.6, squash=0.7)
+    fits = [refine_circle_centres(image, truth + 0.3, warm=True, kernels_choice=choice)
+            for choice in ('numpy', 'compiled')]
+    assert fits[0].valid.all() and fits[1].valid.all()
+    np.testing.assert_allclose(fits[1].points, fits[0].points, rtol=0, atol=1e-9)

@@ -184,6 +184,22 @@ def continuity_medians(grid, y, x, radius):
     return count, median
 
 
+def blurred_ellipses(params, xs, ys, dx, dy):
+    """
+    Compiled counterpart of ``calibration.target_refinement.blurred_ellipse``, (n, m).
+
+    Not part of ``warm_up`` (the nodes never fit targets): compiled, or loaded from the cache,
+    on the first calibration.
+    """
+    params = np.ascontiguousarray(params, dtype=np.float64)
+    xs = np.ascontiguousarray(xs, dtype=np.float64)
+    out = np.empty(xs.shape)
+    _compiled().blurred_ellipses(params, xs, np.ascontiguousarray(ys, dtype=np.float64),
+                                 np.ascontiguousarray(dx, dtype=np.float64),
+                                 np.ascontiguousarray(dy, dtype=np.float64), out)
+    return out
+
+
 def warm_up():
     """Compile (or load) every kernel now; returns the seconds it took."""
     start = time.perf_counter()
