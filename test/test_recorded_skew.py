@@ -217,8 +217,9 @@ def test_a_pair_dropped_as_stale_still_serves_the_skew_compensation(people_80x60
                 source.publish_pair_info(sec, 0.03, left_time_s=times[sec])
                 spin_for(executor, 0.2)
             source.publish_images(sec, left, right)
-            if sec == 1:
-                assert gated.entered.wait(30.0)        # pair 1 is being matched (slowly)
+            if sec == 1:                               # pair 1 is being matched (slowly)
+                spin_until(executor, gated.entered.is_set, 30.0)
+                assert gated.entered.is_set()
         # Pair 2 (waiting for a pair_info that never comes, or not) is handed over when pair
         # 3 arrives, and replaced by it.
         spin_until(executor, lambda: matcher.counts['pairs'] == 3 and
