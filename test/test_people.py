@@ -1016,3 +1016,38 @@ def test_the_silhouettes_short_median_is_numpys_bit_for_bit():
     for count in range(1, 30):
         values = rng.normal(4.5, 0.3, count)
         assert _median(values) == float(np.median(values))
+
+
+def test_a_head_without_matches_in_one_pair_does_not_pull_the_height_down():
+    # Would catch (the recording, 2026-12-06): a walker whose one whole detection had its
+    # points' top on the shoulders (1.36 m for a head at 1.62 m) and whose next 36 were cut
+    # by the image's edge kept 1.36 m for all of them.
+    def seen(head, whole=True):
+        return Detection(0.0, 3.0, head, 60, 1.0, np.eye(2) * 1e-3, head_visible=whole)
+    tracker = PeopleTracker()
+    heights = [1.61, 1.62, 1.55, 1.60, 1.36]
+    for index, head in enumerate(heights):
+        tracks = tracker.update([seen(head)], 0.115 * index)
+    assert tracks[0].head_height == pytest.approx(1.60)       # median of the last five
+    # Cut by the edge: the points' top is a lower bound; lower tops leave the height alone.
+    t = 0.115 * len(heights)
+    assert tracker.update([seen(1.64, whole=False)], t)[0].head_height == pytest.approx(1.64)
+    assert tracker.update([seen(1.10, whole=False)], t + 0.115)[0].head_height == \
+        pytest.approx(1.64)
+    # Sitting down is followed within three pairs (whole again, the lower bound goes).
+    for k in range(2):
+        tracks = tracker.update([seen(1.10)], t + 0.115 * (2 + k))
+    assert tracks[0].head_height == pytest.approx(1.36)
+    tracks = tracker.update([seen(1.10)], t + 0.115 * 4)
+    assert tracks[0].head_height == pytest.approx(1.10)
+    # head_height_pairs 1: the last whole one; a track never seen whole: the last cut one.
+    tracker = PeopleTracker(PeopleConfig(head_height_pairs=1))
+    for index, head in enumerate((1.6, 1.36)):
+        tracks = tracker.update([seen(head)], 0.115 * index)
+    assert tracks[0].head_height == pytest.approx(1.36)
+    tracker = PeopleTracker(PeopleConfig(min_travel_m=0.0))
+    for index, head in enumerate((1.2, 0.9)):
+        tracks = tracker.update([seen(head, whole=False)], 0.115 * index)
+    assert tracks[0].head_height == pytest.approx(0.9)
+    with pytest.raises(ValueError, match='head_height_pairs'):
+        PeopleConfig(head_height_pairs=0)

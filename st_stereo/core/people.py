@@ -91,6 +91,10 @@ class PeopleConfig:
         10.0, 'points this near the image top or a side edge mean the body is cut by it, pixels')
     head_offset_m: float = _field(
         0.0, 'the top of the points (95th percentile) minus this is the head centre height, m')
+    head_height_pairs: int = _field(
+        5, "a track's head height is the median of its last this many detections seen whole "
+        "(one whose head found no matches does not pull it down); while cut by the image's "
+        'edge it is at least the top of the points seen (1: the last whole one)')
     body_half_depth_m: float = _field(
         0.0, 'a whole body: its floor position is pushed this far back from the camera, m')
     cut_body_offset_m: float = _field(
@@ -165,7 +169,7 @@ class PeopleConfig:
             raise ValueError(f'people.min_point_height_m, max_point_height_m: expected 0 <= min '
                              f'< max, got {self.min_point_height_m!r}, '
                              f'{self.max_point_height_m!r}')
-        for name in ('min_points', 'min_hits'):
+        for name in ('min_points', 'min_hits', 'head_height_pairs'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f'people.{name}: expected an integer >= 1, got {value!r}')
@@ -1045,6 +1049,26 @@ def new_spots(spots, x, y):
     return spots
 
 
+def updated_head_height(height, seen_whole, whole_heights, detection, pairs):
+    """
+    Return a track's head height after ``detection``, and its recent whole heights.
+
+    A detection seen whole (head in the image) adds its height to the last ``pairs`` whole
+    ones, whose median is the height: one detection whose head found no matches (its points'
+    top on the shoulders, 0.25 m low in the recording) does not pull it down, and a person
+    sitting down is followed within about ``pairs / 2`` pairs. A detection cut by the image's
+    edge (``head_visible`` False) shows only part of the body: on a track seen whole before,
+    the height stays, raised to the cut detection's points' top if that is higher (it is a
+    lower bound); on a track never seen whole, it is the latest cut detection's.
+    """
+    if detection.head_visible:
+        whole_heights = (whole_heights + (detection.head_height,))[-max(int(pairs), 1):]
+        return _median(whole_heights), whole_heights
+    if seen_whole:
+        return max(height, detection.head_height), whole_heights
+    return detection.head_height, whole_heights
+
+
 @dataclasses.dataclass
 class Track:
     """One person followed over pairs: constant-velocity state ``x, y, vx, vy``."""
@@ -1069,6 +1093,7 @@ class Track:
     farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
     places: tuple = ()            # floor positions of its last PLACES_KEPT detections
     spots: tuple = ()             # places it left by a jump (a warm object's other piece)
+    whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
 
     def __post_init__(self):
         if self.start is None:
@@ -1138,10 +1163,10 @@ class PeopleTracker:
         innovation = np.array([detection.x, detection.y]) - track.state[:2]
         track.state = track.state + gain @ innovation
         track.covariance = (np.eye(4) - gain @ h) @ track.covariance
-        if detection.head_visible or not track.head_visible:
-            # A head cut off by the image's edge keeps the height last seen whole.
-            track.head_height = detection.head_height
-            track.head_visible = detection.head_visible
+        track.head_height, track.whole_heights = updated_head_height(
+            track.head_height, track.head_visible, track.whole_heights, detection,
+            self.config.head_height_pairs)
+        track.head_visible = track.head_visible or detection.head_visible
         track.legs_recent = (track.legs_recent + (detection.legs_seen,))[
             -(self.config.min_hits + 1):]
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
@@ -1304,7 +1329,9 @@ class PeopleTracker:
                                      depth_spread_m=detection.depth_spread_m,
                                      detection=detection,
                                      legs_recent=(detection.legs_seen,),
-                                     places=((detection.x, detection.y),)))
+                                     places=((detection.x, detection.y),),
+                                     whole_heights=(detection.head_height,)
+                                     if detection.head_visible else ()))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
