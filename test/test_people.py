@@ -18,8 +18,8 @@ from st_stereo.core.people import (centred_on_silhouette, detect_people, Detecti
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
                                    silhouette_runs, silhouette_shift_xy, standing_on_legs,
                                    top_edge_height_m, vertical_segment_rows,
-                                   warm_column_gap_m, warm_run_width_m, WarmBackground,
-                                   world_from_rectified)
+                                   warm_column_gap_m, warm_column_reaches_top, warm_run_width_m,
+                                   WarmBackground, world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
 from st_stereo.nodes.people_messages import (detection3d_msg, DETECTION_FIELDS,
@@ -1051,3 +1051,29 @@ def test_a_head_without_matches_in_one_pair_does_not_pull_the_height_down():
     assert tracks[0].head_height == pytest.approx(0.9)
     with pytest.raises(ValueError, match='head_height_pairs'):
         PeopleConfig(head_height_pairs=0)
+
+
+def test_a_whole_body_warm_up_to_the_top_row_above_its_points_keeps_its_height():
+    # Would catch (far_standing, 2026-12-06): a walker whose head is in the image's top three
+    # rows, its matches ending 10-12 rows below, counted as seen whole with its points' top
+    # (1.1 m) as the head height of a head at 1.62 m.
+    warm = np.zeros((60, 80), dtype=bool)
+    warm[0:40, 30:38] = True                     # the head in the top rows, the body below
+    points = np.array([[31.0, 14.0], [36.0, 15.0], [33.0, 30.0], [34.0, 38.0]])
+    assert warm_column_reaches_top(warm, points)
+    lower = warm.copy()
+    lower[0:6, :] = False                        # the head's top in view: cool rows above
+    assert not warm_column_reaches_top(lower, points)
+    beside = lower.copy()
+    beside[0:10, 45:55] = True                   # warm up to the top beside it: not its own
+    assert not warm_column_reaches_top(beside, points)
+    assert not warm_column_reaches_top(warm, np.zeros((0, 2)))
+    # In the tracker: such a detection counts as cut for the height (a lower bound).
+
+    def seen(head, above=False):
+        return Detection(0.0, 3.0, head, 60, 1.0, np.eye(2) * 1e-3, head_above=above)
+    tracker = PeopleTracker()
+    for index, (head, above) in enumerate(((1.62, False), (1.60, False), (1.10, True),
+                                           (1.12, True), (1.08, True), (1.15, True))):
+        tracks = tracker.update([seen(head, above)], 0.115 * index)
+    assert tracks[0].head_height == pytest.approx(1.61)

@@ -31,7 +31,10 @@ The stages, each a pure function or a small state machine fed one pair at a time
    never repeat, a track confirmed after ``min_hits`` detections (or at once when its first
    stands on warm legs with its head high enough, ``confirm_on_legs``), kept without
    detections for ``max_coast_s`` (short occlusions) and then ended; one not confirmed yet
-   ends after ``unconfirmed_coast_s`` without detections.
+   ends after ``unconfirmed_coast_s`` without detections. Its head height is the median of
+   its last ``head_height_pairs`` detections seen whole; a detection cut by the image's edge,
+   or whose warm column above its points reaches the top row (``warm_column_reaches_top``:
+   the head in the top rows, where no 9-pixel window fits), only raises it (a lower bound).
 """
 
 import dataclasses
@@ -278,6 +281,7 @@ class Detection:
     legs_seen: bool = False
     legs_under_head: bool = False  # not cut by the top edge, head high enough, on legs
     legs_only: bool = False       # cut by the top edge so far off that only its legs show
+    head_above: bool = False      # whole, but warm up to the top row above its points
     across: tuple = (0.0, 0.0)    # floor shift to its silhouette's middle (published only)
 
 
@@ -692,6 +696,31 @@ def centred_on_silhouette(detections, warm, transform, intrinsics, points, pixel
     return out
 
 
+def warm_column_reaches_top(warm, pixels, band_rows=3):
+    """
+    Whether the warm pixels above a body's topmost points continue up to the image's top row.
+
+    ``pixels`` (n x 2, x and y in the rectified left image) are the body's points. The
+    columns of those within ``band_rows`` rows of the topmost (the shoulders or the head),
+    widened by one pixel each side, are followed up from the row above the topmost: the body
+    reaches the top when every row up to row 0 holds a warm pixel among them. Then its head
+    may lie at or above the image's edge, its points' top only a lower bound (the matches end
+    several rows below a head in the image's top rows, where a 9-pixel window does not fit).
+    """
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if not len(pixels):
+        return False
+    rows = np.rint(pixels[:, 1]).astype(int)
+    cols = np.rint(pixels[:, 0]).astype(int)
+    top = int(rows.min())
+    near = rows <= top + band_rows
+    low = max(int(cols[near].min()) - 1, 0)
+    high = min(int(cols[near].max()) + 1, warm.shape[1] - 1)
+    if top <= 0 or low > high:
+        return top <= 0
+    return bool(np.all(np.any(warm[:top, low:high + 1], axis=1)))
+
+
 def top_edge_height_m(floor_xy, transform, intrinsics):
     """
     Height above the floor at which the image's top edge crosses a vertical at ``floor_xy``.
@@ -1059,9 +1088,11 @@ def updated_head_height(height, seen_whole, whole_heights, detection, pairs):
     sitting down is followed within about ``pairs / 2`` pairs. A detection cut by the image's
     edge (``head_visible`` False) shows only part of the body: on a track seen whole before,
     the height stays, raised to the cut detection's points' top if that is higher (it is a
-    lower bound); on a track never seen whole, it is the latest cut detection's.
+    lower bound); on a track never seen whole, it is the latest cut detection's. A detection
+    whose warm silhouette continues from its points up to the image's top row
+    (``head_above``) counts as cut here.
     """
-    if detection.head_visible:
+    if detection.head_visible and not detection.head_above:
         whole_heights = (whole_heights + (detection.head_height,))[-max(int(pairs), 1):]
         return _median(whole_heights), whole_heights
     if seen_whole:
@@ -1331,7 +1362,8 @@ class PeopleTracker:
                                      legs_recent=(detection.legs_seen,),
                                      places=((detection.x, detection.y),),
                                      whole_heights=(detection.head_height,)
-                                     if detection.head_visible else ()))
+                                     if detection.head_visible and not detection.head_above
+                                     else ()))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
@@ -1407,7 +1439,8 @@ class PeopleEstimator:
                        'legs_only_detections': 0, 'legs_only_below_top': 0,
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
-                       'silhouette_shared': 0, 'silhouette_not_checked': 0}
+                       'silhouette_shared': 0, 'silhouette_not_checked': 0,
+                       'head_above_points': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -1470,9 +1503,20 @@ class PeopleEstimator:
                                                self.background.valid)
         elif self.config.centre_on_silhouette:     # no image or camera matrix: the points'
             self.counts['silhouette_not_checked'] += len(detections)
+        if warm is not None:
+            detections = [self._head_above(d, warm, pixels) for d in detections]
         tracks = self.tracker.update(detections, stamp_s)
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
+
+    def _head_above(self, detection, warm, pixels):
+        """Mark a whole detection whose silhouette reaches the top row (``head_above``)."""
+        if not detection.head_visible or detection.members is None:
+            return detection
+        if not warm_column_reaches_top(warm, pixels[detection.members]):
+            return detection
+        self.counts['head_above_points'] += 1
+        return dataclasses.replace(detection, head_above=True)
 
     @staticmethod
     def _people_pixels(tracks, used, x_left, y, image_shape):
