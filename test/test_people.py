@@ -1029,26 +1029,33 @@ def test_a_head_without_matches_in_one_pair_does_not_pull_the_height_down():
     for index, head in enumerate(heights):
         tracks = tracker.update([seen(head)], 0.115 * index)
     assert tracks[0].head_height == pytest.approx(1.60)       # median of the last five
-    # Cut by the edge: the points' top is a lower bound; lower tops leave the height alone.
+    # Cut by the edge: the points' top is a lower bound (head_visible 0 while it raises the
+    # height), held for five pairs, then lapsed: back to the whole detections' median.
     t = 0.115 * len(heights)
-    assert tracker.update([seen(1.64, whole=False)], t)[0].head_height == pytest.approx(1.64)
-    assert tracker.update([seen(1.10, whole=False)], t + 0.115)[0].head_height == \
-        pytest.approx(1.64)
+    published = []
+    for k, head in enumerate((1.64, 1.10, 1.10, 1.10, 1.10, 1.10)):
+        track = tracker.update([seen(head, whole=False)], t + 0.115 * k)[0]
+        published.append((track.head_height, track.head_visible))
+    assert published == [(pytest.approx(1.64), False)] * 5 + [(pytest.approx(1.60), True)]
+    t += 0.115 * 4
     # Sitting down is followed within three pairs (whole again, the lower bound goes).
     for k in range(2):
         tracks = tracker.update([seen(1.10)], t + 0.115 * (2 + k))
     assert tracks[0].head_height == pytest.approx(1.36)
     tracks = tracker.update([seen(1.10)], t + 0.115 * 4)
     assert tracks[0].head_height == pytest.approx(1.10)
-    # head_height_pairs 1: the last whole one; a track never seen whole: the last cut one.
+    # head_height_pairs 1: the last whole one.
     tracker = PeopleTracker(PeopleConfig(head_height_pairs=1))
     for index, head in enumerate((1.6, 1.36)):
         tracks = tracker.update([seen(head)], 0.115 * index)
     assert tracks[0].head_height == pytest.approx(1.36)
-    tracker = PeopleTracker(PeopleConfig(min_travel_m=0.0))
-    for index, head in enumerate((1.2, 0.9)):
-        tracks = tracker.update([seen(head, whole=False)], 0.115 * index)
-    assert tracks[0].head_height == pytest.approx(0.9)
+    # A track never seen whole: the highest bound of its last head_height_pairs detections.
+    tracker = PeopleTracker(PeopleConfig(min_travel_m=0.0, head_height_pairs=2))
+    heights = []
+    for index, head in enumerate((1.2, 0.9, 0.8)):
+        heights += [t.head_height for t in tracker.update([seen(head, whole=False)],
+                                                          0.115 * index)]
+    assert heights == [pytest.approx(1.2), pytest.approx(0.9)]
     with pytest.raises(ValueError, match='head_height_pairs'):
         PeopleConfig(head_height_pairs=0)
 
@@ -1059,6 +1066,7 @@ def test_a_whole_body_warm_up_to_the_top_row_above_its_points_keeps_its_height()
     # (1.1 m) as the head height of a head at 1.62 m.
     warm = np.zeros((60, 80), dtype=bool)
     warm[0:40, 30:38] = True                     # the head in the top rows, the body below
+    warm[0:6, 30:32] = False                     # the head narrower than the shoulders
     points = np.array([[31.0, 14.0], [36.0, 15.0], [33.0, 30.0], [34.0, 38.0]])
     assert warm_column_reaches_top(warm, points)
     lower = warm.copy()
@@ -1067,13 +1075,33 @@ def test_a_whole_body_warm_up_to_the_top_row_above_its_points_keeps_its_height()
     beside = lower.copy()
     beside[0:10, 45:55] = True                   # warm up to the top beside it: not its own
     assert not warm_column_reaches_top(beside, points)
+    screen = lower.copy()
+    screen[0:10, 20:50] = True                   # a wide warm screen behind, above the head
+    assert not warm_column_reaches_top(screen, points)
+    scattered = lower.copy()
+    scattered[np.arange(10), 30 + 7 * (np.arange(10) % 2)] = True    # not connected
+    assert not warm_column_reaches_top(scattered, points)
     assert not warm_column_reaches_top(warm, np.zeros((0, 2)))
-    # In the tracker: such a detection counts as cut for the height (a lower bound).
+    # In the tracker such a detection is a lower bound, for its own pair only.
 
-    def seen(head, above=False):
-        return Detection(0.0, 3.0, head, 60, 1.0, np.eye(2) * 1e-3, head_above=above)
+    def seen(head, above=False, whole=True):
+        return Detection(0.0, 3.0, head, 60, 1.0, np.eye(2) * 1e-3, head_visible=whole,
+                         head_above=above)
     tracker = PeopleTracker()
-    for index, (head, above) in enumerate(((1.62, False), (1.60, False), (1.10, True),
-                                           (1.12, True), (1.08, True), (1.15, True))):
+    sequence = ((1.62, False), (1.60, False), (1.10, True), (1.12, True), (1.95, True)) + \
+        ((1.15, True),) * 5
+    published = []
+    for index, (head, above) in enumerate(sequence):
         tracks = tracker.update([seen(head, above)], 0.115 * index)
-    assert tracks[0].head_height == pytest.approx(1.61)
+        published.append((tracks[0].head_height, tracks[0].head_visible) if tracks else None)
+    # Below the whole median the bounds change nothing; 1.95 (two bodies merged, say) holds
+    # for five pairs, published as a bound (head_visible 0), then lapses.
+    assert published[2:] == [(pytest.approx(1.61), True)] * 2 + \
+        [(pytest.approx(1.95), False)] * 5 + [(pytest.approx(1.61), True)]
+    # A track started on a lower bound publishes it as one until it is seen whole.
+    tracker = PeopleTracker(PeopleConfig(min_travel_m=0.0))
+    for index, head in enumerate((1.1, 1.2)):
+        tracks = tracker.update([seen(head, above=True)], 0.115 * index)
+    assert (tracks[0].head_height, tracks[0].head_visible) == (pytest.approx(1.2), False)
+    tracks = tracker.update([seen(1.55)], 0.23)
+    assert (tracks[0].head_height, tracks[0].head_visible) == (pytest.approx(1.55), True)

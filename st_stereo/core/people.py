@@ -96,8 +96,8 @@ class PeopleConfig:
         0.0, 'the top of the points (95th percentile) minus this is the head centre height, m')
     head_height_pairs: int = _field(
         5, "a track's head height is the median of its last this many detections seen whole "
-        "(one whose head found no matches does not pull it down); while cut by the image's "
-        'edge it is at least the top of the points seen (1: the last whole one)')
+        "(one whose head found no matches does not pull it down); one cut by the image's "
+        "edge raises it to its points' top for this many pairs (1: the last one)")
     body_half_depth_m: float = _field(
         0.0, 'a whole body: its floor position is pushed this far back from the camera, m')
     cut_body_offset_m: float = _field(
@@ -696,16 +696,21 @@ def centred_on_silhouette(detections, warm, transform, intrinsics, points, pixel
     return out
 
 
-def warm_column_reaches_top(warm, pixels, band_rows=3):
+def warm_column_reaches_top(warm, pixels, band_rows=3, spread_px=2):
     """
-    Whether the warm pixels above a body's topmost points continue up to the image's top row.
+    Whether a warm column above a body's topmost points continues up to the image's top row.
 
-    ``pixels`` (n x 2, x and y in the rectified left image) are the body's points. The
-    columns of those within ``band_rows`` rows of the topmost (the shoulders or the head),
-    widened by one pixel each side, are followed up from the row above the topmost: the body
-    reaches the top when every row up to row 0 holds a warm pixel among them. Then its head
-    may lie at or above the image's edge, its points' top only a lower bound (the matches end
-    several rows below a head in the image's top rows, where a 9-pixel window does not fit).
+    ``pixels`` (n x 2, x and y in the rectified left image) are the body's points. The band
+    of columns of those within ``band_rows`` rows of the topmost, widened by one pixel each
+    side, is followed up from the row above the topmost: each row must hold a warm run
+    touching (8-neighbours) the previous row's, no wider than the band plus ``spread_px``
+    each side (the upper body and the head are no wider than the body where its points end;
+    a warm screen or wall behind, wider, stops it). The run may drift sideways from row to
+    row (verticals slant in the image). When every row up to row 0 holds one, the head may
+    lie at or above the image's edge and the points' top is only a lower bound (the matches
+    end several rows below a head in the image's top rows, where a 9-pixel window does not
+    fit). A cool gap, pixels without data (never warm) or a topmost point off the body make it
+    False: the points' top is then taken as the head's, as before.
     """
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     if not len(pixels):
@@ -713,12 +718,27 @@ def warm_column_reaches_top(warm, pixels, band_rows=3):
     rows = np.rint(pixels[:, 1]).astype(int)
     cols = np.rint(pixels[:, 0]).astype(int)
     top = int(rows.min())
+    if top <= 0:
+        return True
     near = rows <= top + band_rows
-    low = max(int(cols[near].min()) - 1, 0)
-    high = min(int(cols[near].max()) + 1, warm.shape[1] - 1)
-    if top <= 0 or low > high:
-        return top <= 0
-    return bool(np.all(np.any(warm[:top, low:high + 1], axis=1)))
+    width = warm.shape[1]
+    low, high = max(int(cols[near].min()) - 1, 0), min(int(cols[near].max()) + 1, width - 1)
+    widest = high - low + 1 + 2 * spread_px
+    for row in range(top - 1, -1, -1):
+        line = warm[row]
+        hot = np.flatnonzero(line[max(low - 1, 0):high + 2]) + max(low - 1, 0)
+        if not len(hot):
+            return False
+        # The run holding the warm pixel nearest the previous span's middle.
+        start = end = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
+        while start > 0 and line[start - 1]:
+            start -= 1
+        while end < width - 1 and line[end + 1]:
+            end += 1
+        if end - start + 1 > widest:
+            return False
+        low, high = start, end
+    return True
 
 
 def top_edge_height_m(floor_xy, transform, intrinsics):
@@ -1078,26 +1098,35 @@ def new_spots(spots, x, y):
     return spots
 
 
-def updated_head_height(height, seen_whole, whole_heights, detection, pairs):
+def updated_head_height(whole_heights, bounds, detection, pairs):
     """
-    Return a track's head height after ``detection``, and its recent whole heights.
+    Return a track's head height, whole heights, bounds and ``whole`` after ``detection``.
 
-    A detection seen whole (head in the image) adds its height to the last ``pairs`` whole
-    ones, whose median is the height: one detection whose head found no matches (its points'
-    top on the shoulders, 0.25 m low in the recording) does not pull it down, and a person
-    sitting down is followed within about ``pairs / 2`` pairs. A detection cut by the image's
-    edge (``head_visible`` False) shows only part of the body: on a track seen whole before,
-    the height stays, raised to the cut detection's points' top if that is higher (it is a
-    lower bound); on a track never seen whole, it is the latest cut detection's. A detection
-    whose warm silhouette continues from its points up to the image's top row
-    (``head_above``) counts as cut here.
+    ``whole_heights``: the heights of its last ``pairs`` detections seen whole (head in the
+    image), whose median is the height after a whole one: one detection whose head found no
+    matches (its points' top on the shoulders, 0.25 m low in the recording) does not pull it
+    down, and a person sitting down is followed within about ``pairs / 2`` pairs. A detection
+    cut by the image's edge (``head_visible`` False), or whose warm column continues from its
+    points up to the image's top row (``head_above``), shows only part of the body: its
+    points' top is a lower bound. ``bounds``: the last ``pairs`` detections' bounds (-inf for
+    whole ones), so a bound holds for ``pairs`` pairs and then lapses (one cut detection
+    that merged two bodies does not stay). After a bound, the height is the whole heights'
+    median raised to the highest bound still held; on a track never seen whole, that bound.
+    ``whole``: the height is the whole heights' median, not raised (published as
+    ``head_visible``).
     """
+    pairs = max(int(pairs), 1)
+    height = detection.head_height
     if detection.head_visible and not detection.head_above:
-        whole_heights = (whole_heights + (detection.head_height,))[-max(int(pairs), 1):]
-        return _median(whole_heights), whole_heights
-    if seen_whole:
-        return max(height, detection.head_height), whole_heights
-    return detection.head_height, whole_heights
+        whole_heights = (whole_heights + (height,))[-pairs:]
+        bounds = (bounds + (-math.inf,))[-pairs:]
+        return _median(whole_heights), whole_heights, bounds, True
+    bounds = (bounds + (height,))[-pairs:]
+    bound = max(bounds)
+    if whole_heights:
+        median = _median(whole_heights)
+        return max(median, bound), whole_heights, bounds, bound <= median
+    return bound, whole_heights, bounds, False
 
 
 @dataclasses.dataclass
@@ -1112,7 +1141,7 @@ class Track:
     points: int
     hits: int
     last_seen_s: float
-    head_visible: bool = True
+    head_visible: bool = True     # head_height is its whole detections' median, not a bound
     updated: bool = True
     seen_as_person: bool = False  # head seen once, or legs in min_hits of min_hits + 1
     legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
@@ -1125,6 +1154,7 @@ class Track:
     places: tuple = ()            # floor positions of its last PLACES_KEPT detections
     spots: tuple = ()             # places it left by a jump (a warm object's other piece)
     whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
+    bounds: tuple = ()            # its last head_height_pairs detections' lower bounds (-inf)
 
     def __post_init__(self):
         if self.start is None:
@@ -1194,10 +1224,9 @@ class PeopleTracker:
         innovation = np.array([detection.x, detection.y]) - track.state[:2]
         track.state = track.state + gain @ innovation
         track.covariance = (np.eye(4) - gain @ h) @ track.covariance
-        track.head_height, track.whole_heights = updated_head_height(
-            track.head_height, track.head_visible, track.whole_heights, detection,
-            self.config.head_height_pairs)
-        track.head_visible = track.head_visible or detection.head_visible
+        track.head_height, track.whole_heights, track.bounds, track.head_visible = \
+            updated_head_height(track.whole_heights, track.bounds, detection,
+                                self.config.head_height_pairs)
         track.legs_recent = (track.legs_recent + (detection.legs_seen,))[
             -(self.config.min_hits + 1):]
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
@@ -1353,17 +1382,17 @@ class PeopleTracker:
             covariance = np.zeros((4, 4))
             covariance[:2, :2] = detection.covariance + np.eye(2) * 1e-4
             covariance[2:, 2:] = np.eye(2) * 1.0     # walking speed unknown: 1 m/s sigma
+            height, whole_heights, bounds, whole = updated_head_height(
+                (), (), detection, self.config.head_height_pairs)
             self.tracks.append(Track(0, np.array([detection.x, detection.y, 0, 0]),
-                                     covariance, detection.head_height, detection.confidence,
-                                     detection.points, 1, stamp_s, detection.head_visible,
+                                     covariance, height, detection.confidence,
+                                     detection.points, 1, stamp_s, whole,
                                      cut_top=detection.cut_top,
                                      depth_spread_m=detection.depth_spread_m,
                                      detection=detection,
                                      legs_recent=(detection.legs_seen,),
                                      places=((detection.x, detection.y),),
-                                     whole_heights=(detection.head_height,)
-                                     if detection.head_visible and not detection.head_above
-                                     else ()))
+                                     whole_heights=whole_heights, bounds=bounds))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
         alive = []
         for track in self.tracks:
@@ -1440,7 +1469,7 @@ class PeopleEstimator:
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
                        'silhouette_shared': 0, 'silhouette_not_checked': 0,
-                       'head_above_points': 0}
+                       'head_above_detections': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None):
@@ -1515,7 +1544,7 @@ class PeopleEstimator:
             return detection
         if not warm_column_reaches_top(warm, pixels[detection.members]):
             return detection
-        self.counts['head_above_points'] += 1
+        self.counts['head_above_detections'] += 1
         return dataclasses.replace(detection, head_above=True)
 
     @staticmethod

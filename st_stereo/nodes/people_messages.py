@@ -6,8 +6,8 @@ Messages of the people node from ``st_stereo.core.people`` tracks (no node state
 - ``detections_cloud``: sensor_msgs/PointCloud2, one point per person, float32 fields
   ``DETECTION_FIELDS`` (x, y, z = 0 on the floor; id; vx, vy in m/s; head height; confidence
   0..1; points used; the floor position covariance cov_xx, cov_xy, cov_yy in m^2;
-  head_visible 1, or 0 when the body is cut by the image's edge and the height is a lower
-  bound).
+  head_visible 1 when the height is the median of the track's detections seen whole, 0 when
+  it is a lower bound: the body cut by the image's edge, or its head in the image's top rows).
 - ``markers_msg``: visualization_msgs/MarkerArray, a cylinder (floor to head) and a text
   with the id per person, namespaces ``people`` and ``people_ids``, marker id = track id;
   a track that ended gets DELETE markers of both.
