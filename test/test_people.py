@@ -1105,3 +1105,25 @@ def test_a_whole_body_warm_up_to_the_top_row_above_its_points_keeps_its_height()
     assert (tracks[0].head_height, tracks[0].head_visible) == (pytest.approx(1.2), False)
     tracks = tracker.update([seen(1.55)], 0.23)
     assert (tracks[0].head_height, tracks[0].head_visible) == (pytest.approx(1.55), True)
+
+
+def test_the_estimator_marks_a_body_whose_head_is_in_the_top_rows_without_matches():
+    # The wiring of warm_column_reaches_top: a body 1.75 m tall at 3.4 m (the top edge
+    # crosses it at 1.65 m) matched only 12 rows and more below the top, as far_standing's
+    # walker was; and one 1.3 m tall (cool rows above it), which is not marked.
+    rig, transform, intrinsics = _rig_geometry()
+    marked = {}
+    for name, top in (('head in the top rows', 1.75), ('wholly in view', 1.3)):
+        warm, points, pixels = _painted(rig, _box(0.2, 0.6, 3.4, 0.0, top, nx=30, nz=60))
+        found = pixels[:, 1] >= 12.0
+        image = np.full((60, 80), 8000.0)
+        image[warm] += 400.0
+        estimator = PeopleEstimator(transform, PeopleConfig(min_head_height_m=0.9))
+        for k in range(3):
+            frame = estimator.process(0.115 * k, points[found], pixels[found, 0],
+                                      pixels[found, 1], 0.1 * 84.0 / points[found, 2],
+                                      left_image=image, intrinsics=intrinsics)
+        assert len(frame.detections) == 1 and frame.detections[0].head_visible, name
+        marked[name] = (frame.detections[0].head_above,
+                        estimator.counts['head_above_detections'])
+    assert marked == {'head in the top rows': (True, 3), 'wholly in view': (False, 0)}
