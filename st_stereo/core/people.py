@@ -501,11 +501,10 @@ def warm_run_width_m(warm, floor_xy, transform, intrinsics, config=None):
     for _, row, low, high, depth in vertical_segment_rows(
             floor_xy, np.linspace(*LEGS_HEIGHTS_M, 9), transform, intrinsics, warm.shape,
             config.person_radius_m / 2):
-        hot = np.flatnonzero(warm[row, low:high + 1]) + low
-        if not len(hot):
+        run = central_warm_run(warm[row], low, high, 0.5 * (low + high))
+        if run is None:
             continue
-        middle = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
-        start, end = warm_run(warm[row], middle, middle, bridge=False)
+        start, end = run
         if start == 0 or end == warm.shape[1] - 1:
             return float('nan')
         widths.append((end - start + 1) * depth / fx)
@@ -557,6 +556,19 @@ def warm_run(line, start, end, bridge=True):
     while end < width - 1 and (line[end + 1] or (bridge and end < width - 2 and line[end + 2])):
         end += 1 if line[end + 1] else 2
     return start, end
+
+
+def central_warm_run(line, low, high, middle):
+    """
+    Return the warm run (first, last) of ``line`` through its warm pixel nearest ``middle``.
+
+    Only the pixels ``low..high`` are candidates; no gap is bridged; None when none is warm.
+    """
+    hot = np.flatnonzero(line[low:high + 1]) + low
+    if not len(hot):
+        return None
+    nearest = int(hot[np.argmin(np.abs(hot - middle))])
+    return warm_run(line, nearest, nearest, bridge=False)
 
 
 def _median(values):
@@ -725,19 +737,11 @@ def warm_column_reaches_top(warm, pixels, band_rows=3, spread_px=2):
     low, high = max(int(cols[near].min()) - 1, 0), min(int(cols[near].max()) + 1, width - 1)
     widest = high - low + 1 + 2 * spread_px
     for row in range(top - 1, -1, -1):
-        line = warm[row]
-        hot = np.flatnonzero(line[max(low - 1, 0):high + 2]) + max(low - 1, 0)
-        if not len(hot):
+        # The run touching the previous one, nearest its middle.
+        run = central_warm_run(warm[row], max(low - 1, 0), high + 1, 0.5 * (low + high))
+        if run is None or run[1] - run[0] + 1 > widest:
             return False
-        # The run holding the warm pixel nearest the previous span's middle.
-        start = end = int(hot[np.argmin(np.abs(hot - 0.5 * (low + high)))])
-        while start > 0 and line[start - 1]:
-            start -= 1
-        while end < width - 1 and line[end + 1]:
-            end += 1
-        if end - start + 1 > widest:
-            return False
-        low, high = start, end
+        low, high = run
     return True
 
 

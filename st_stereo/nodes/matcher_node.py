@@ -55,6 +55,17 @@ def data_mask(msg, image):
 STAMP_LATENCY_PLAUSIBLE_S = 5.0     # a stamp older than this is not on the node's clock
 
 
+def _pair_images(left_msg, right_msg, left_info, right_info):
+    """Return a pair's two images; ValueError when one's size is not its camera_info's."""
+    left = conversions.msg_to_image(left_msg)
+    right = conversions.msg_to_image(right_msg)
+    for image, info, side in ((left, left_info, 'left'), (right, right_info, 'right')):
+        if image.shape != (info.height, info.width):
+            raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but its '
+                             f'camera_info says {info.width}x{info.height}')
+    return left, right
+
+
 def _stamp_key(msg):
     return (msg.header.stamp.sec, msg.header.stamp.nanosec)
 
@@ -249,11 +260,7 @@ class MatcherNode(Node):
         try:
             if left_time is None:
                 raise ValueError('no pair_info')
-            left = conversions.msg_to_image(left_msg)
-            right = conversions.msg_to_image(right_msg)
-            if left.shape != (left_info.height, left_info.width) or \
-                    right.shape != (right_info.height, right_info.width):
-                raise ValueError('image and camera_info sizes differ')
+            left, right = _pair_images(left_msg, right_msg, left_info, right_info)
             model = self._model_for(left_info, right_info)
             self.skew.remember(left, left_time, right, skew, model, ffc)
         except Exception:  # noqa: B902 - never costs the pair matched next
@@ -292,12 +299,7 @@ class MatcherNode(Node):
 
     def _match_pair(self, left_msg, right_msg, left_info, right_info, arrival):
         try:
-            left = conversions.msg_to_image(left_msg)
-            right = conversions.msg_to_image(right_msg)
-            for image, info, side in ((left, left_info, 'left'), (right, right_info, 'right')):
-                if image.shape != (info.height, info.width):
-                    raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but '
-                                     f'its camera_info says {info.width}x{info.height}')
+            left, right = _pair_images(left_msg, right_msg, left_info, right_info)
             model = self._model_for(left_info, right_info)
             matcher = self.matcher
             matcher.model = model
