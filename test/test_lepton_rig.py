@@ -389,7 +389,9 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
 @pytest.mark.timeout(180)
 def test_stereo_pipeline_on_sim_does_not_grow():
     # The simulated cameras used to keep every frame they sent (9.6 kB each, 0.17 MB/s for
-    # the pair): a trend that a minute shows. The one-hour run is `st-stereo soak`.
+    # the pair): a trend that half a minute shows (20 s after a 10 s warm-up: the slope of
+    # 1 Hz samples, 0.006-0.008 MiB/s when measured, against the old leak's 0.17). The
+    # one-hour run is `st-stereo soak`.
     import psutil
     from st_stereo.tools.rig_bench import rss_trend
     process = psutil.Process()
@@ -400,10 +402,10 @@ def test_stereo_pipeline_on_sim_does_not_grow():
         add(RectifierNode(context=context))
         add(MatcherNode(context=context))
         start = time.monotonic()
-        while time.monotonic() - start < 45.0:
+        while time.monotonic() - start < 30.0:
             spin_for(executor, 1.0)
             samples.append((time.monotonic() - start, process.memory_info().rss / 2 ** 20))
-        assert driver.published >= 8.0 * 40
+        assert driver.published >= 8.0 * 25
     slope = rss_trend(samples, warmup_s=10.0)
     print(f'\nRSS {samples[0][1]:.1f} -> {samples[-1][1]:.1f} MiB, trend {slope * 3600:+.1f} '
           f'MiB/hour')
