@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 from st_stereo.core.calibration.target_refinement import (
-    blurred_ellipse, compiled_blurred_ellipse, ellipse_matrix, refine_chessboard_corners,
-    refine_circle_centres)
+    blurred_ellipse, blurred_saddle, compiled_blurred_ellipse, ellipse_matrix,
+    refine_chessboard_corners, refine_circle_centres)
 
 OVERSAMPLE = 12
 
@@ -108,3 +108,35 @@ def test_the_compiled_ellipse_model_is_the_numpy_reference():
             for choice in ('numpy', 'compiled')]
     assert fits[0].valid.all() and fits[1].valid.all()
     np.testing.assert_allclose(fits[1].points, fits[0].points, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize('model', [blurred_ellipse, blurred_saddle], ids=['ellipse', 'saddle'])
+def test_the_gain_and_offset_columns_are_the_models_derivatives(model):
+    # fit_batch takes the last two Jacobian columns from the model's values instead of two
+    # more evaluations: they must be what a difference of the model gives, for any gain
+    # (one too near zero to divide by included) and with zero weights in the window.
+    from st_stereo.core.calibration.target_refinement import (_gain_offset_columns,
+                                                              feature_windows)
+    rng = np.random.default_rng(4)
+    count = 5
+    centres = rng.uniform(6, 12, (count, 2))
+    xs, ys, _ = feature_windows(centres, 4, (20, 20))
+    size = 8 if model is blurred_ellipse else 7
+    p = np.zeros((count, size))
+    p[:, :2] = centres
+    if model is blurred_ellipse:
+        p[:, 2:6] = [np.log(2.0), 0.2, -0.1, np.log(0.6)]
+    else:
+        p[:, 2:5] = [0.3, 1.8, np.log(0.6)]
+    p[:, -2] = [300.0, -120.0, 1e-9, 0.0, 45.0]
+    p[:, -1] = rng.uniform(7000, 9000, count)
+    data = rng.uniform(7000, 9000, xs.shape)
+    weights = (rng.uniform(size=xs.shape) > 0.2).astype(np.float64)
+    r = (model(p, xs, ys) - data) * weights
+    jacobian = np.full(r.shape + (size,), np.nan)
+    _gain_offset_columns(jacobian, p, r, data, weights, model, xs, ys)
+    for column in (size - 2, size - 1):
+        shifted = p.copy()
+        shifted[:, column] += 1.0
+        expected = (model(shifted, xs, ys) - model(p, xs, ys)) * weights
+        np.testing.assert_allclose(jacobian[:, :, column], expected, rtol=1e-6, atol=1e-6)

@@ -22,7 +22,8 @@ Two models, both point-symmetric about the feature, so a mismatch in the exact e
 
 Each pixel's value is the model's mean over ``SUBSAMPLES`` x ``SUBSAMPLES`` points of the pixel
 (the sensor integrates over its area). All features of an image are fitted at once by a batched
-Levenberg-Marquardt with a forward-difference Jacobian, within bounds. A circle is first fitted
+Levenberg-Marquardt with a forward-difference Jacobian (analytic for the gain and offset),
+within bounds. A circle is first fitted
 on the pixels nearer to it than half way to its nearest neighbour, then twice more on its whole
 window with the neighbouring blobs' fitted tails subtracted.
 """
@@ -103,7 +104,7 @@ def ellipse_model(choice='auto'):
     """
     Return the blurred-ellipse model the fits use for a ``kernels`` choice (``STConfig``'s).
 
-    The fit evaluates it nine times per step for every circle of every image; compiled, a
+    The fit evaluates it seven times per step for every circle of every image; compiled, a
     60-pair calibration takes about a third of the time.
     """
     return compiled_blurred_ellipse if kernels.use_compiled(choice) else blurred_ellipse
@@ -125,7 +126,7 @@ def blurred_saddle(params, xs, ys):
 
 
 def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=1.5,
-              iterations=40, tolerance=1e-7):
+              iterations=40, tolerance=1e-7, gain_offset=False):
     """
     Levenberg-Marquardt fit of ``model`` to every row of ``data`` at once.
 
@@ -135,8 +136,11 @@ def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=
     lowest and highest values of each parameter (the centre's are ignored: it is kept within
     ``max_shift_px`` of its start). A feature stops when a step lowers its cost by less than
     ``tolerance`` (relative) and moves its centre by less than ``CENTRE_TOLERANCE_PX``, or when
-    its damping has grown past any useful step. Returns the fitted
-    parameters and the weighted residual rms per feature.
+    its damping has grown past any useful step. ``gain_offset``: the last two parameters are
+    a gain ``a`` and an offset ``b`` of the model, ``b + a * shape(p)`` (both models here): their
+    Jacobian columns are ``shape = (model - b) / a`` and 1, taken from the model's values
+    instead of two more evaluations (a forward difference of a linear parameter is the same
+    to rounding). Returns the fitted parameters and the weighted residual rms per feature.
     """
     params = np.array(params, dtype=np.float64)
     lower = np.broadcast_to(np.asarray(bounds[0], dtype=np.float64), params.shape).copy()
@@ -152,16 +156,20 @@ def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=
     residual = residuals(params, slice(None))
     cost = np.einsum('nm,nm->n', residual, residual)
     active = np.arange(count)
+    numeric = range(size - 2) if gain_offset else range(size)
     for _ in range(iterations):
         if not len(active):
             break
         p, r = params[active], residual[active]
         jacobian = np.empty(r.shape + (size,))
-        for i in range(size):
+        for i in numeric:
             shifted = p.copy()
             shifted[:, i] += steps[i] * np.maximum(1.0, np.abs(p[:, i]))
             jacobian[:, :, i] = (residuals(shifted, active) - r) / \
                 (shifted[:, i] - p[:, i])[:, None]
+        if gain_offset:
+            _gain_offset_columns(jacobian, p, r, data[active], weights[active], model, xs[active],
+                                 ys[active])
         normal = np.einsum('nmi,nmj->nij', jacobian, jacobian)
         gradient = np.einsum('nmi,nm->ni', jacobian, r)
         scale = np.einsum('nii->ni', normal) + 1e-12
@@ -185,6 +193,27 @@ def fit_batch(model, params, xs, ys, data, weights, steps, bounds, max_shift_px=
         active = active[~done]
     used = np.maximum(weights.astype(bool).sum(axis=1), 1)
     return params, np.sqrt(cost / used)
+
+
+def _gain_offset_columns(jacobian, p, r, data, weights, model, xs, ys):
+    """
+    Fill the last two Jacobian columns of ``b + a * shape(p)``: ``w shape`` and ``w``.
+
+    The model's values are ``r / w + data`` where the weight ``w`` is not zero; where it is,
+    the column is 0 whatever the shape. A gain too near zero to divide by gets its shape from
+    one evaluation with ``a = 1, b = 0``.
+    """
+    gain, offset = p[:, -2, None], p[:, -1, None]
+    weighted = weights != 0
+    values = np.divide(r, weights, out=np.zeros_like(r), where=weighted) + data
+    small = np.abs(gain[:, 0]) < 1e-6
+    shape = (values - offset) / np.where(small[:, None], 1.0, gain)
+    if small.any():
+        unit = p[small].copy()
+        unit[:, -2], unit[:, -1] = 1.0, 0.0
+        shape[small] = model(unit, xs[small], ys[small])
+    jacobian[:, :, -2] = shape * weights
+    jacobian[:, :, -1] = weights
 
 
 def _solve(matrices, vectors):
@@ -277,11 +306,13 @@ def refine_circle_centres(image, centres, warm, max_shift_px=1.0, kernels_choice
     # then on the whole window with the neighbours' fitted tails subtracted (twice).
     own = np.hypot(xs - centres[:, :1], ys - centres[:, 1:]) <= 0.5 * spacing[:, None] + 0.5
     params, rms = fit_batch(model, params, xs, ys, values,
-                            (inside & own).astype(np.float64), BLOB_STEPS, bounds)
+                            (inside & own).astype(np.float64), BLOB_STEPS, bounds,
+                            gain_offset=True)
     for _ in range(2):
         tails = _neighbour_tails(params, xs, ys, 4.0 * half, model)
         params, rms = fit_batch(model, params, xs, ys, values - tails,
-                                inside.astype(np.float64), BLOB_STEPS, bounds)
+                                inside.astype(np.float64), BLOB_STEPS, bounds,
+                                gain_offset=True)
     valid = (np.linalg.norm(params[:, :2] - centres, axis=1) <= max_shift_px) & \
         (params[:, 6] > 0) & np.all(np.isfinite(params), axis=1)
     return Refinement(points=params[:, :2].copy(), params=params, residual_rms=rms, valid=valid)
@@ -321,7 +352,7 @@ def refine_chessboard_corners(image, corners, pattern_size, max_shift_px=1.0):
         design = np.column_stack([basis[k][used], np.ones(used.sum())])
         (params[k, 5], params[k, 6]), *_ = np.linalg.lstsq(design, values[k][used], rcond=None)
     params, rms = fit_batch(blurred_saddle, params, xs, ys, values, weights, SADDLE_STEPS,
-                            SADDLE_BOUNDS)
+                            SADDLE_BOUNDS, gain_offset=True)
     valid = (np.linalg.norm(params[:, :2] - corners, axis=1) <= max_shift_px) & \
         (np.abs(np.sin(params[:, 2] - params[:, 3])) > 0.2) & \
         np.all(np.isfinite(params), axis=1)
