@@ -1127,3 +1127,28 @@ def test_the_estimator_marks_a_body_whose_head_is_in_the_top_rows_without_matche
         marked[name] = (frame.detections[0].head_above,
                         estimator.counts['head_above_detections'])
     assert marked == {'head in the top rows': (True, 3), 'wholly in view': (False, 0)}
+
+
+def test_a_track_on_a_hidden_person_is_not_scored_and_one_on_nobody_is_false():
+    # A track kept through an occlusion lies on a person the truth counts as hidden (fewer
+    # than VISIBLE_PX pixels): neither a hit nor a false person; one 2 m from anybody is.
+    from st_stereo.tools.eval_people import PeopleTally
+    tally = PeopleTally()
+    seen, hidden = (0.0, 3.0, 1.7), (0.7, 3.1, 1.6)
+    for pair in range(4):
+        tracks = [types.SimpleNamespace(position=np.array(xy), head_height=1.7, track_id=i,
+                                        depth_spread_m=0.2)
+                  for i, xy in ((1, (0.05, 3.0)), (2, (0.75, 3.1)), (3, (3.0, 1.0)))[:2 + (
+                      pair == 3)]]
+        tally.add([0], np.array([seen]), tracks, None, np.array([hidden]))
+    row = tally.row()
+    assert row['on_hidden'] == 4 and row['estimates'] == 5
+    assert row['recall'] == 1.0 and row['precision'] == pytest.approx(4 / 5)
+    assert row['precision_strict'] == pytest.approx(4 / 9)
+    assert row['mota'] == pytest.approx(1 - 1 / 4) and row['id_switches'] == 0
+    # The track nearer the visible person is its hit even when it is also near the hidden one.
+    tally = PeopleTally()
+    track = types.SimpleNamespace(position=np.array([0.3, 3.0]), head_height=1.7, track_id=1,
+                                  depth_spread_m=0.2)
+    tally.add([0], np.array([seen]), [track], None, np.array([(0.5, 3.0, 1.6)]))
+    assert tally.hits == 1 and tally.on_hidden == 0

@@ -205,13 +205,15 @@ def print_people_truth(monitor, truth, people):
         heads = np.asarray(truth['heads_world'][index])
         visible = visible_people(truth['labels'][index], len(heads))
         seen = heads_in_image(truth['heads_rectified'][index], model, shape)
-        tally.add(np.flatnonzero(visible), heads[visible], tracks, seen[visible])
+        tally.add(np.flatnonzero(visible), heads[visible], tracks, seen[visible],
+                  heads[~visible])
     if not tally.pairs:
         print('  people against the truth: no people/detections matched a ground-truth stamp')
         return
     row = tally.row()
     print(f'  people against the truth ({tally.pairs} pairs, a hit within {HIT_M} m of a head '
-          f'centre): recall {row["recall"]:.1%}, precision {row["precision"]:.1%}, horizontal '
+          f'centre): recall {row["recall"]:.1%}, precision {row["precision"]:.1%} '
+          f'({row["on_hidden"]} on hidden people not scored), horizontal '
           f'error median {row["horizontal_median_m"]:.3f} m / p95 {row["horizontal_p95_m"]:.3f}'
           f' m, head height error median {row["height_median_m"]:.3f} m, MOTA '
           f'{row["mota"]:.3f}, id switches {row["id_switches"]}')
