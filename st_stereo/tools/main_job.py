@@ -187,7 +187,8 @@ def print_people_truth(monitor, truth, people):
     """Print the people received against a recording's true heads (tools.eval_people)."""
     import types
 
-    from st_stereo.tools.eval_people import heads_in_image, HIT_M, PeopleTally, visible_people
+    from st_stereo.tools.eval_people import (heads_in_image, hidden_in_view, HIT_M, PeopleTally,
+                                             visible_people)
     if 'heads_world' not in truth or people.camera_info is None:
         return
     stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
@@ -205,15 +206,17 @@ def print_people_truth(monitor, truth, people):
         heads = np.asarray(truth['heads_world'][index])
         visible = visible_people(truth['labels'][index], len(heads))
         seen = heads_in_image(truth['heads_rectified'][index], model, shape)
+        hidden = hidden_in_view(visible, truth['heads_rectified'][index], model, shape[1])
         tally.add(np.flatnonzero(visible), heads[visible], tracks, seen[visible],
-                  heads[~visible])
+                  np.flatnonzero(hidden), heads[hidden])
     if not tally.pairs:
         print('  people against the truth: no people/detections matched a ground-truth stamp')
         return
     row = tally.row()
     print(f'  people against the truth ({tally.pairs} pairs, a hit within {HIT_M} m of a head '
           f'centre): recall {row["recall"]:.1%}, precision {row["precision"]:.1%} '
-          f'({row["on_hidden"]} on hidden people not scored), horizontal '
+          f'({row["on_hidden"]} tracks kept on people hidden in view not scored; '
+          f'{row["precision_strict"]:.1%} counting them false), horizontal '
           f'error median {row["horizontal_median_m"]:.3f} m / p95 {row["horizontal_p95_m"]:.3f}'
           f' m, head height error median {row["height_median_m"]:.3f} m, MOTA '
           f'{row["mota"]:.3f}, id switches {row["id_switches"]}')
