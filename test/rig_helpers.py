@@ -41,10 +41,13 @@ def check_stream(got, sent, min_pairs_per_s, window, clock_offset_s=None,
     is the midpoint of the two true acquisition times and ``pair_info``'s skew their
     difference, within ``tolerance_s`` (25 ms: a copy late is 38 ms, a wrong partner 114 ms;
     the emulator's own scheduling delays on a busy machine reach about 16 ms).
-    ``interrupted_at`` (monotonic): when the publishing process was sent Ctrl-C. rclpy's
-    signal handler shuts its context down at once, so a pair being published then may have
-    its left image out and its right one refused: the last stamp may lack a side if its
-    images arrived after that moment (seen once in CI with the matcher loading the process).
+    ``interrupted_at`` (monotonic): when the publishing process was sent Ctrl-C. Until
+    2026-12-07 rclpy's signal handler shut its context down at once, and a pair being
+    published then could lose its right image (seen once in CI with the matcher loading the
+    process); the nodes now finish the pair (``runtime.run_nodes``, tested in
+    ``test_nodes.py`` on the publishing side). Here, on a remote subscriber, the last stamp
+    may still lack a side if its images arrived after that moment: the delivery of the last
+    messages of a process that is exiting is not what these tests check.
     """
     by_digest = {}
     for side, frames in sent.items():

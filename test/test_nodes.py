@@ -434,3 +434,74 @@ def test_a_node_process_ends_cleanly_on_a_signal(signal_name):
         if process.poll() is None:
             process.kill()
             process.wait()
+
+
+SIGNAL_MID_PAIR = '''
+import json, os, signal, sys, time
+import rclpy
+from rclpy.parameter import Parameter
+from st_stereo.nodes import runtime
+from st_stereo.nodes.driver_node import DriverNode
+
+counts = {'left': 0, 'right': 0, 'pair_info': 0}
+
+
+def counted(name, publish):
+    def wrapped(msg):
+        if name == 'right' and counts['right'] == 4:    # Ctrl-C between a pair's images
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.5)
+        publish(msg)
+        counts[name] += 1
+    return wrapped
+
+
+def build():
+    driver = DriverNode(parameter_overrides=[Parameter('source', value='sim')])
+    for index, name in enumerate(('left', 'right')):
+        driver.image_pubs[index].publish = counted(name, driver.image_pubs[index].publish)
+    driver.pair_info_pub.publish = counted('pair_info', driver.pair_info_pub.publish)
+    return [driver]
+
+
+if sys.argv[1] == 'orderly':
+    code = runtime.run_nodes(build)
+else:                                  # rclpy's own signal handler, as before 2026-12-07
+    rclpy.init()
+    executor = runtime.node_executor()
+    nodes = build()
+    executor.add_node(nodes[0])
+    try:
+        runtime.spin_until_shutdown(executor)
+    finally:
+        nodes[0].destroy_node()
+        rclpy.try_shutdown()
+    code = 0
+print(json.dumps(counts))
+sys.exit(code)
+'''
+
+
+def test_ctrl_c_between_the_images_of_a_pair_lets_the_driver_finish_the_pair(tmp_path):
+    # rclpy's handler shuts the context down inside the signal: the driver's thread, between
+    # the left and the right image, then failed the rest of the pair (a subscriber or a bag
+    # got a left image without its right one: seen in CI, 2026-12-06). run_nodes turns the
+    # signal into a stop request and destroys the nodes (joining the driver's thread) before
+    # shutting the context down. The control runs the same process with rclpy's handler.
+    import json
+    import subprocess
+    import sys
+    script = tmp_path / 'signal_mid_pair.py'
+    script.write_text(SIGNAL_MID_PAIR)
+    counts = {}
+    for mode in ('orderly', 'rclpy'):
+        result = subprocess.run([sys.executable, str(script), mode], capture_output=True,
+                                text=True, timeout=60)
+        assert result.returncode == 0, result.stderr[-2000:]
+        assert 'Traceback' not in result.stderr, result.stderr[-2000:]
+        counts[mode] = json.loads(result.stdout.strip().splitlines()[-1])
+    assert counts['orderly']['left'] >= 5
+    assert counts['orderly']['left'] == counts['orderly']['right'] == \
+        counts['orderly']['pair_info'], counts
+    # The control: the same signal with rclpy's handler loses the pair's right image.
+    assert counts['rclpy']['right'] == counts['rclpy']['left'] - 1, counts

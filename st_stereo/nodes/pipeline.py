@@ -9,7 +9,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
@@ -20,7 +19,7 @@ from st_stereo.nodes.matcher_node import MatcherNode
 from st_stereo.nodes.people_messages import DETECTION_FIELDS
 from st_stereo.nodes.people_node import PeopleNode
 from st_stereo.nodes.rectifier_node import RectifierNode
-from st_stereo.nodes.runtime import node_executor, spin_until_shutdown, with_default_namespace
+from st_stereo.nodes.runtime import run_nodes, with_default_namespace
 
 
 def build_nodes(args=None):
@@ -103,15 +102,4 @@ class SuiteMonitor(Node):
 
 def main(args=None):
     """Run the pipeline until Ctrl-C; exits non-zero when the driver could not recover."""
-    rclpy.init(args=args)
-    nodes = build_nodes()
-    executor = node_executor()
-    for node in nodes:
-        executor.add_node(node)
-    try:
-        spin_until_shutdown(executor)
-    finally:
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return max(getattr(node, 'exit_code', 0) for node in nodes)
+    return run_nodes(build_nodes, args)

@@ -6,11 +6,13 @@ Also the QoS every publisher uses and the hand-over of work to a node's worker t
 
 import contextlib
 import os
+import signal
 import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 # Topics are relative: by default they live under this namespace (``-r __ns:=/x`` moves them).
 DEFAULT_NAMESPACE = 'stereo'
@@ -77,44 +79,96 @@ def node_executor(context=None):
     return SingleThreadedExecutor(context=context)
 
 
-def spin_until_shutdown(executor):
+def spin_until_shutdown(executor, stop=None):
     """
-    Spin ``executor`` until Ctrl-C or a shutdown of rclpy's default context (quietly).
+    Spin ``executor`` until Ctrl-C, ``stop`` is set or rclpy's default context shuts down.
 
     Not ``executor.spin()``: the events executor's does not return when a signal shuts the
-    context down (rclpy 7.1.6); the timeout bounds the wait for that to 0.2 s.
+    context down (rclpy 7.1.6); the timeout bounds the wait for that, or for ``stop``
+    (``stop_on_signals``), to 0.2 s.
     """
     with until_shutdown():
-        while rclpy.ok():
+        while rclpy.ok() and not (stop is not None and stop.is_set()):
             executor.spin_once(timeout_sec=0.2)
 
 
-def spin_node(factory, args=None):
-    """
-    Create a node with ``factory()`` and spin it until Ctrl-C or an external shutdown.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    Returns the node's ``exit_code`` (0 when it has none): a node that shuts itself down
-    because it cannot go on sets it, so the process exits non-zero and launch can respawn it.
-    A node that cannot start from its configuration (a parameter of the wrong type or out of
-    range, a calibration file missing or invalid: ValueError, OSError) is one line on standard
-    error naming the problem, and exit code 2.
+
+@contextlib.contextmanager
+def stop_on_signals(signals=STOP_SIGNALS):
+    """
+    Turn Ctrl-C and SIGTERM into a request to stop: yields the Event the first one sets.
+
+    rclpy's own handler shuts the context down at once, from inside the signal: a node thread
+    between two publishes of one stereo pair (the driver: left image and camera_info, right
+    image and camera_info, pair_info) then fails the rest, and subscribers and bag recorders
+    get half a pair. With this handler (and rclpy's off: ``init_for_signals``) the spin ends,
+    the nodes are destroyed (the driver joins its reading thread, which finishes the pair it
+    is publishing; the matcher finishes the pair it is matching) and only then is the context
+    shut down. A second signal before that is done raises KeyboardInterrupt (stop waiting).
+    Must run in the main thread (Python delivers signals there). Restores the previous
+    handlers on exit.
+    """
+    stop = threading.Event()
+
+    def request_stop(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+    previous = {number: signal.signal(number, request_stop) for number in signals}
+    try:
+        yield stop
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def init_for_signals(args=None):
+    """``rclpy.init`` without rclpy's signal handlers (``stop_on_signals`` handles them)."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+
+
+def run_nodes(build, args=None):
+    """
+    Create nodes with ``build()`` (a list) and spin them until Ctrl-C, SIGTERM or a shutdown.
+
+    The process's life for every executable: rclpy without its signal handlers, the nodes
+    stopped in order on the first signal (``stop_on_signals``: a pair being published is
+    finished), then the context shut down. Returns the largest of the nodes' ``exit_code``
+    (0 when none has one): a node that shuts itself down because it cannot go on sets it, so
+    the process exits non-zero and launch can respawn it. A node that cannot start from its
+    configuration (a parameter of the wrong type or out of range, a calibration file missing
+    or invalid: ValueError, OSError) is one line on standard error naming the problem, and
+    exit code 2.
     """
     import sys
-    rclpy.init(args=args)
-    try:
-        executor = node_executor()
-        node = factory()
-    except (ValueError, OSError) as error:
-        print(f'{sys.argv[0].rsplit("/", 1)[-1]}: cannot start: {error}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return getattr(node, 'exit_code', 0)
+    with stop_on_signals() as stop:
+        init_for_signals(args)
+        try:
+            executor = node_executor()
+            nodes = build()
+        except (ValueError, OSError) as error:
+            print(f'{sys.argv[0].rsplit("/", 1)[-1]}: cannot start: {error}', file=sys.stderr)
+            rclpy.try_shutdown()
+            return 2
+        try:
+            for node in nodes:
+                executor.add_node(node)
+            spin_until_shutdown(executor, stop)
+        finally:
+            try:
+                for node in nodes:
+                    node.destroy_node()
+            except KeyboardInterrupt:
+                pass            # a second signal: do not wait for the nodes any longer
+            rclpy.try_shutdown()
+    return max((getattr(node, 'exit_code', 0) for node in nodes), default=0)
+
+
+def spin_node(factory, args=None):
+    """Run one node made by ``factory()`` as a process (``run_nodes``)."""
+    return run_nodes(lambda: [factory()], args)
 
 
 class LatestSlot:
