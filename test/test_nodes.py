@@ -436,7 +436,7 @@ def test_a_node_process_ends_cleanly_on_a_signal(signal_name):
             process.wait()
 
 
-SIGNAL_MID_PAIR = '''
+SIGNAL_MID_PAIR = """
 import json, os, signal, sys, time
 import rclpy
 from rclpy.parameter import Parameter
@@ -479,7 +479,7 @@ else:                                  # rclpy's own signal handler, as before 2
     code = 0
 print(json.dumps(counts))
 sys.exit(code)
-'''
+"""
 
 
 def test_ctrl_c_between_the_images_of_a_pair_lets_the_driver_finish_the_pair(tmp_path):
@@ -505,3 +505,58 @@ def test_ctrl_c_between_the_images_of_a_pair_lets_the_driver_finish_the_pair(tmp
         counts['orderly']['pair_info'], counts
     # The control: the same signal with rclpy's handler loses the pair's right image.
     assert counts['rclpy']['right'] == counts['rclpy']['left'] - 1, counts
+
+
+SLOW_TO_STOP = """
+import sys, time
+from rclpy.node import Node
+from st_stereo.nodes import runtime
+
+
+class SlowToStop(Node):
+    def destroy_node(self):
+        print('stopping', flush=True)
+        time.sleep(3.0)
+        print('stopped', flush=True)
+        return super().destroy_node()
+
+
+def build():
+    print('spinning', flush=True)
+    return [SlowToStop('slow_to_stop')]
+
+
+sys.exit(runtime.run_nodes(build))
+"""
+
+
+@pytest.mark.parametrize('second_after_s, code', [(0.1, 0), (1.6, 130)],
+                         ids=['same-request', 'forced'])
+def test_a_second_signal_forces_the_stop_only_after_the_repeat_window(
+        tmp_path, second_after_s, code):
+    # launch and a terminal may both signal a process at once: the same request. A second
+    # Ctrl-C later means do not wait: exit 130, said on standard error.
+    import signal
+    import subprocess
+    import sys
+    import time
+    script = tmp_path / 'slow_to_stop.py'
+    script.write_text(SLOW_TO_STOP)
+    process = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == 'spinning'
+        time.sleep(0.5)
+        process.send_signal(signal.SIGINT)
+        assert process.stdout.readline().strip() == 'stopping'
+        time.sleep(second_after_s)
+        process.send_signal(signal.SIGTERM)
+        out, err = process.communicate(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == code, err[-2000:]
+    assert 'Traceback' not in err, err[-2000:]
+    assert ('stopped' in out) == (code == 0)
+    assert ('stopped by a second signal' in err) == (code != 0)

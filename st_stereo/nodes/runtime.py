@@ -8,6 +8,7 @@ import contextlib
 import os
 import signal
 import threading
+import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -93,6 +94,8 @@ def spin_until_shutdown(executor, stop=None):
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+REPEAT_WINDOW_S = 1.0       # a signal this soon after the first is the same request
+FORCED_EXIT_CODE = 130      # the stop was forced by a second signal (128 + SIGINT)
 
 
 @contextlib.contextmanager
@@ -106,16 +109,20 @@ def stop_on_signals(signals=STOP_SIGNALS):
     get half a pair. With this handler (and rclpy's off: ``init_for_signals``) the spin ends,
     the nodes are destroyed (the driver joins its reading thread, which finishes the pair it
     is publishing; the matcher finishes the pair it is matching) and only then is the context
-    shut down. A second signal before that is done raises KeyboardInterrupt (stop waiting).
+    shut down. A signal within ``REPEAT_WINDOW_S`` of the first is the same request (launch
+    and a terminal may both send one); a later one raises KeyboardInterrupt: stop waiting.
     Must run in the main thread (Python delivers signals there). Restores the previous
     handlers on exit.
     """
     stop = threading.Event()
+    first = []
 
     def request_stop(signum, frame):
-        if stop.is_set():
+        if not first:
+            first.append(time.monotonic())
+            stop.set()
+        elif time.monotonic() - first[0] > REPEAT_WINDOW_S:
             raise KeyboardInterrupt
-        stop.set()
     previous = {number: signal.signal(number, request_stop) for number in signals}
     try:
         yield stop
@@ -140,29 +147,44 @@ def run_nodes(build, args=None):
     the process exits non-zero and launch can respawn it. A node that cannot start from its
     configuration (a parameter of the wrong type or out of range, a calibration file missing
     or invalid: ValueError, OSError) is one line on standard error naming the problem, and
-    exit code 2.
+    exit code 2. A second signal (``stop_on_signals``) while the nodes start or stop ends
+    the process without waiting for them, with exit code ``FORCED_EXIT_CODE``, said on
+    standard error.
     """
     import sys
+    name = sys.argv[0].rsplit('/', 1)[-1]
     with stop_on_signals() as stop:
         init_for_signals(args)
         try:
             executor = node_executor()
             nodes = build()
         except (ValueError, OSError) as error:
-            print(f'{sys.argv[0].rsplit("/", 1)[-1]}: cannot start: {error}', file=sys.stderr)
+            print(f'{name}: cannot start: {error}', file=sys.stderr)
             rclpy.try_shutdown()
             return 2
+        except KeyboardInterrupt:
+            print(f'{name}: stopped by a second signal while starting', file=sys.stderr)
+            rclpy.try_shutdown()
+            return FORCED_EXIT_CODE
+        forced = False
         try:
             for node in nodes:
                 executor.add_node(node)
             spin_until_shutdown(executor, stop)
         finally:
+            if stop.is_set():
+                print(f'{name}: stopping (a second Ctrl-C stops without waiting)',
+                      file=sys.stderr)
             try:
                 for node in nodes:
                     node.destroy_node()
             except KeyboardInterrupt:
-                pass            # a second signal: do not wait for the nodes any longer
+                forced = True
+                print(f'{name}: stopped by a second signal before every node had stopped',
+                      file=sys.stderr)
             rclpy.try_shutdown()
+    if forced:
+        return FORCED_EXIT_CODE
     return max((getattr(node, 'exit_code', 0) for node in nodes), default=0)
 
 
