@@ -1180,3 +1180,35 @@ def test_a_person_hidden_in_view_is_one_behind_another_not_one_gone_out_at_a_sid
     visible = np.array([True, False, False, False])
     np.testing.assert_array_equal(hidden_in_view(visible, heads, model, 80),
                                   [False, True, False, False])
+
+
+def test_the_scoring_of_a_pair_passes_the_people_hidden_in_view_to_the_tally():
+    # PeopleScoring.pair's wiring, with stand-ins for ST and the people stage. All three are
+    # seen in the first pair; in the second, person 1 is hidden behind person 0 (10 pixels,
+    # head in the image) and person 2 has walked out at the side (head beyond the image's
+    # columns): the track kept on person 1 is excused, the one kept on person 2 is false.
+    from st_stereo.sim.sequences import PERSON_LABEL_BASE
+    from st_stereo.tools.eval_people import PeopleScoring, PeopleTally
+    model = types.SimpleNamespace(fx=80.0, fy=80.0, cx=39.5, cy=29.5)
+    scoring = PeopleScoring.__new__(PeopleScoring)
+    scoring.rectifier = types.SimpleNamespace(model=model,
+                                              rectify=lambda a, b: (np.zeros((60, 80)), b))
+    empty = types.SimpleNamespace(points=np.zeros((0, 3)), x_point=np.zeros(0),
+                                  y_point=np.zeros(0), disparity=np.zeros(0),
+                                  confidence=np.zeros(0))
+    scoring.matching = types.SimpleNamespace(match=lambda *args: empty)
+    tracks = [_track(1, 0.0, 3.0), _track(2, 0.7, 3.1), _track(3, 1.3, 3.0)]
+    scoring.estimator = types.SimpleNamespace(
+        process=lambda *args, **kwargs: types.SimpleNamespace(tracks=tracks))
+    scoring.tally = PeopleTally()
+    world = [(0.0, 3.0, 1.7), (0.7, 3.1, 1.6), (1.3, 3.0, 1.7)]
+    for columns, person2_x in ((6, 1.0), (1, 2.0)):
+        labels = np.zeros((60, 80), dtype=np.int32)
+        labels[20:30, 30:36] = PERSON_LABEL_BASE
+        labels[40:50, 50:50 + columns] = PERSON_LABEL_BASE + 1
+        if columns == 6:
+            labels[40:50, 70:76] = PERSON_LABEL_BASE + 2
+        rectified = [(0.0, -0.5, 3.0), (0.5, -0.5, 3.0), (person2_x, -0.5, 3.0)]
+        scoring.pair(None, None, 0.0, 0.03, labels, world, rectified)
+    row = scoring.tally.row()
+    assert (row['on_hidden'], scoring.tally.hits, row['estimates']) == (1, 4, 5)
