@@ -49,12 +49,16 @@ HELD_OUT_SEQUENCES = ('meeting_room', 'crossing', 'open_office')
 HELD_OUT_EXCEPT = {'open_office': 'held out but for the column-gap guard and the warm-object rule'}
 
 
-def heads_in_image(heads_rectified, model, shape, margin_px=0.0):
-    """Whether each head centre (rectified left frame) projects inside the left image."""
+def head_pixels(heads_rectified, model):
+    """Image columns and rows ``u, v`` of head centres (rectified left frame); NaN behind."""
     heads = np.asarray(heads_rectified, dtype=np.float64).reshape(-1, 3)
     z = np.where(heads[:, 2] > 0, heads[:, 2], np.nan)
-    u = model.fx * heads[:, 0] / z + model.cx
-    v = model.fy * heads[:, 1] / z + model.cy
+    return model.fx * heads[:, 0] / z + model.cx, model.fy * heads[:, 1] / z + model.cy
+
+
+def heads_in_image(heads_rectified, model, shape, margin_px=0.0):
+    """Whether each head centre (rectified left frame) projects inside the left image."""
+    u, v = head_pixels(heads_rectified, model)
     inside = (u >= -0.5 + margin_px) & (u <= shape[1] - 0.5 - margin_px) & \
         (v >= -0.5 + margin_px) & (v <= shape[0] - 0.5 - margin_px)
     return np.nan_to_num(inside, nan=False).astype(bool)
@@ -131,6 +135,21 @@ class PeopleTally:
         self.frames.append((list(truth_ids), truth[:, :2].copy(), [t.track_id for t in tracks],
                             estimate[:, :2].copy()))
 
+    def add_labelled(self, labels, heads_world, heads_rectified, model, shape, tracks):
+        """
+        Score one pair from the truth's labels and head centres (world and rectified frames).
+
+        Visible people (``visible_people``) are the truths, their heights scored where the
+        head is in the image (``shape``, the rectified left image's); the people hidden in
+        view (``hidden_in_view``) go to ``add``.
+        """
+        heads_world = np.asarray(heads_world, dtype=np.float64).reshape(-1, 3)
+        visible = visible_people(labels, len(heads_world))
+        head_seen = heads_in_image(heads_rectified, model, shape)
+        hidden = hidden_in_view(visible, heads_rectified, model, shape[1])
+        self.add(np.flatnonzero(visible), heads_world[visible], tracks, head_seen[visible],
+                 np.flatnonzero(hidden), heads_world[hidden])
+
     def _kept_through_occlusion(self, track_id, truth_id):
         """Whether ``track_id`` was ``truth_id``'s hit at most SHORT_OCCLUSION_PAIRS ago."""
         person, pair = self.last_hit.get(track_id, (None, -1))
@@ -190,9 +209,7 @@ def hidden_in_view(visible, heads_rectified, model, width):
     A person behind another, or whose few pixels do not count, is hidden in view; one who has
     left the view at a side (or is not in the room yet) is not.
     """
-    heads = np.asarray(heads_rectified, dtype=np.float64).reshape(-1, 3)
-    z = np.where(heads[:, 2] > 0, heads[:, 2], np.nan)
-    u = model.fx * heads[:, 0] / z + model.cx
+    u, _ = head_pixels(heads_rectified, model)
     return ~np.asarray(visible, dtype=bool) & np.nan_to_num(
         (u >= -0.5) & (u <= width - 0.5), nan=False).astype(bool)
 
@@ -227,12 +244,8 @@ class PeopleScoring:
                                         result.disparity, result.confidence, left,
                                         intrinsics=(model.fx, model.fy, model.cx, model.cy))
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
-        visible = visible_people(labels, len(heads_world))
-        head_seen = heads_in_image(heads_rectified, self.rectifier.model, left.shape)
-        heads_world = np.asarray(heads_world, dtype=np.float64).reshape(-1, 3)
-        hidden = hidden_in_view(visible, heads_rectified, model, left.shape[1])
-        self.tally.add(np.flatnonzero(visible), heads_world[visible], people.tracks,
-                       head_seen[visible], np.flatnonzero(hidden), heads_world[hidden])
+        self.tally.add_labelled(labels, heads_world, heads_rectified, model, left.shape,
+                                people.tracks)
         return people
 
 

@@ -187,8 +187,7 @@ def print_people_truth(monitor, truth, people):
     """Print the people received against a recording's true heads (tools.eval_people)."""
     import types
 
-    from st_stereo.tools.eval_people import (heads_in_image, hidden_in_view, HIT_M, PeopleTally,
-                                             visible_people)
+    from st_stereo.tools.eval_people import HIT_M, PeopleTally
     if 'heads_world' not in truth or people.camera_info is None:
         return
     stamps = np.asarray(truth['stamp_ns'], dtype=np.int64)
@@ -203,12 +202,8 @@ def print_people_truth(monitor, truth, people):
         tracks = [types.SimpleNamespace(position=row[[0, 1]], head_height=float(row[6]),
                                         track_id=int(row[3]), depth_spread_m=float('nan'))
                   for row in monitor.people[stamp]]
-        heads = np.asarray(truth['heads_world'][index])
-        visible = visible_people(truth['labels'][index], len(heads))
-        seen = heads_in_image(truth['heads_rectified'][index], model, shape)
-        hidden = hidden_in_view(visible, truth['heads_rectified'][index], model, shape[1])
-        tally.add(np.flatnonzero(visible), heads[visible], tracks, seen[visible],
-                  np.flatnonzero(hidden), heads[hidden])
+        tally.add_labelled(truth['labels'][index], truth['heads_world'][index],
+                           truth['heads_rectified'][index], model, shape, tracks)
     if not tally.pairs:
         print('  people against the truth: no people/detections matched a ground-truth stamp')
         return
