@@ -287,6 +287,84 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
     assert tracker.counts['started'] == 1
 
 
+def _screen_lent_legs(config, lent_pairs=(10, 11), end_s=12.0, far_person_legs=True):
+    """
+    Run a screen cut by the top edge, lent legs in ``lent_pairs``, beside a far person.
+
+    Returns the tracker and, per pair, the stamp and the published tracks' (id, x).
+    """
+    tracker = PeopleTracker(config)
+    screen = Detection(1.3, 4.5, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    person = Detection(-1.0, 5.2, 0.9, 14, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True, legs_seen=far_person_legs)
+    published = []
+    for index, t in enumerate(np.arange(0.0, end_s, 0.115)):
+        lent = dataclasses.replace(screen, legs_seen=index in lent_pairs)
+        tracks = tracker.update([lent, person], t)
+        published.append((t, [(track.track_id, track.state[0]) for track in tracks]))
+    return tracker, published
+
+
+def test_a_screen_lent_legs_in_two_pairs_is_withdrawn_once_its_legs_lapse():
+    # A passer-by's legs in front of a warm screen cut by the top edge, in two of three
+    # pairs, make it a person (min_hits of min_hits + 1 on legs); nothing else ever
+    # withdrew it, and its pixels, a published person's, were kept from the background.
+    config = PeopleConfig()
+    lent_at = 10 * 0.115
+    tracker, published = _screen_lent_legs(config)
+    on_screen = [(t, track_id) for t, tracks in published for track_id, x in tracks if x > 0]
+    assert on_screen, 'the lent legs no longer publish the screen: the test shows nothing'
+    assert min(t for t, _ in on_screen) == pytest.approx(lent_at + 0.115, abs=1e-9)
+    # Withdrawn one pair after legs_lapse_s without legs; its id ended (markers deleted).
+    assert max(t for t, _ in on_screen) <= lent_at + 0.115 + config.legs_lapse_s + 1e-9
+    assert max(t for t, _ in on_screen) > lent_at + config.legs_lapse_s - 0.23
+    screen_id = on_screen[0][1]
+    assert tracker.counts['legs_lapsed'] == 1
+    assert not any(x > 0 for _, tracks in published[-5:] for _, x in tracks)
+    # The far person standing on its legs all along keeps one id to the end.
+    assert {track_id for _, tracks in published for track_id, x in tracks if x < 0} == {1}
+    assert all(any(x < 0 for _, x in tracks) for _, tracks in published[1:])
+    assert screen_id != 1
+    # The screen's track goes on, unpublished: a warm object again.
+    screen_track = [track for track in tracker.tracks if track.state[0] > 0]
+    assert len(screen_track) == 1 and tracker.is_warm_object(screen_track[0])
+    # Without the lapse (0: never) the screen is published to the end.
+    _, kept = _screen_lent_legs(PeopleConfig(legs_lapse_s=0.0))
+    assert all(any(x > 0 for _, x in tracks) for t, tracks in kept if t > lent_at + 0.2)
+
+
+def test_a_withdrawn_screen_lent_legs_again_is_published_again_under_a_new_id():
+    config = PeopleConfig(legs_lapse_s=2.0)
+    tracker, published = _screen_lent_legs(config, lent_pairs=(10, 11, 60, 62), end_s=8.0)
+    ids = [track_id for _, tracks in published for track_id, x in tracks if x > 0]
+    assert len(set(ids)) == 2 and tracker.counts['legs_lapsed'] >= 1
+
+
+@pytest.mark.parametrize('far_person_legs', [True, False])
+def test_the_legs_lapse_spares_people_seen_whole_or_walking(far_person_legs):
+    # A person seen whole once, or one that walked min_travel_m, is a person by that, not by
+    # legs: their legs hidden for long (behind a desk) do not withdraw them.
+    config = PeopleConfig(legs_lapse_s=1.0)
+    tracker = PeopleTracker(config)
+    whole = Detection(-1.0, 3.0, 1.6, 40, 1.0, np.eye(2) * 1e-3)
+    behind_desk = Detection(-1.0, 3.0, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                            cut_top=True, legs_seen=False)
+    times = np.arange(0.0, 4.0, 0.115)
+    for t in times[:3]:
+        tracker.update([whole], t)
+    for t in times[3:]:
+        assert [track.track_id for track in tracker.update([behind_desk], t)] == [1]
+    walker = PeopleTracker(config)
+    for index, t in enumerate(times):
+        x = min(-2.0 + t, 0.0)      # walks 2 m, then stands, legs seen at first only
+        detection = Detection(x, 4.8, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                              cut_top=True, legs_seen=far_person_legs and index < 3)
+        published = walker.update([detection], t)
+    assert [track.track_id for track in published] == [1]
+    assert tracker.counts['legs_lapsed'] == walker.counts['legs_lapsed'] == 0
+
+
 def test_a_body_with_its_head_on_warm_legs_is_published_at_its_first_detection():
     rig, transform, intrinsics = _rig_geometry()
     # A person 2.8 m off, head in the image; a warm screen on a desk (cool knee space below).

@@ -128,6 +128,11 @@ class PeopleConfig:
     min_travel_m: float = _field(
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
+    legs_lapse_s: float = _field(
+        5.0, 'a track published on its legs alone (never seen whole, never moved min_travel_m) '
+        'whose detections have not stood on legs for this long is withdrawn (its id ends; the '
+        'track goes on unpublished, as a warm object): a warm screen lent legs by passers-by '
+        'is not a person for good; 0: never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
@@ -157,6 +162,9 @@ class PeopleConfig:
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
     def __post_init__(self):
+        if not (math.isfinite(self.legs_lapse_s) and self.legs_lapse_s >= 0):
+            raise ValueError(f'people.legs_lapse_s: expected a number >= 0 (0: never), got '
+                             f'{self.legs_lapse_s!r}')
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
                     'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma',
                     'max_range_m', 'object_radius_m')
@@ -1148,6 +1156,8 @@ class Track:
     head_visible: bool = True     # head_height is its whole detections' median, not a bound
     updated: bool = True
     seen_as_person: bool = False  # head seen once, or legs in min_hits of min_hits + 1
+    seen_whole: bool = False      # a detection not cut by the top edge, head high enough
+    legs_seen_s: float = -math.inf    # stamp of its last detection standing on legs
     legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
     confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
@@ -1207,7 +1217,7 @@ class PeopleTracker:
         self.object_memory = []      # (last seen s, spots) of warm objects' ended tracks
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
                        'unassigned_detections': 0, 'time_backwards': 0,
-                       'object_detections': 0}
+                       'object_detections': 0, 'legs_lapsed': 0}
 
     def _predict(self, dt):
         f = np.eye(4)
@@ -1234,6 +1244,7 @@ class PeopleTracker:
         track.legs_recent = (track.legs_recent + (detection.legs_seen,))[
             -(self.config.min_hits + 1):]
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
+        track.seen_whole = track.seen_whole or self._seen_whole(detection)
         track.cut_top = detection.cut_top
         track.detection = detection
         track.farthest_m = max(track.farthest_m, track.travel_m)
@@ -1261,7 +1272,26 @@ class PeopleTracker:
         """
         if detection.cut_top:
             return sum(track.legs_recent) >= self.config.min_hits
-        return detection.head_height >= self.config.min_head_height_m
+        return self._seen_whole(detection)
+
+    def _seen_whole(self, detection):
+        """Whether a detection shows a person by itself: not cut by the top edge, head high."""
+        return not detection.cut_top and detection.head_height >= self.config.min_head_height_m
+
+    def _legs_lapsed(self, track, stamp_s):
+        """
+        Whether a published track's only evidence of a person, its legs, has lapsed.
+
+        Published on its legs alone (``_is_person``: never seen whole, never moved
+        ``min_travel_m``), detected now, and none of its detections for more than
+        ``legs_lapse_s`` stood on legs: a warm screen cut by the top edge that a passer-by's
+        legs, in front of it in two of three pairs, made a person (and whose pixels the
+        background then stops learning) shows none afterwards, while a far person standing
+        on the floor shows them pair after pair (the tuning sequences: a gap of 0 s).
+        """
+        return self.config.legs_lapse_s > 0 and track.confirmed and track.updated and \
+            not track.seen_whole and track.farthest_m < self.config.min_travel_m and \
+            stamp_s - track.legs_seen_s > self.config.legs_lapse_s
 
     def predicted_xy(self, stamp_s):
         """Return each track's floor position predicted to ``stamp_s`` (no state change)."""
@@ -1376,6 +1406,8 @@ class PeopleTracker:
                 if distance[row, col] <= gate[row, 0]:
                     self._correct(group[row], detections[free[col]])
                     group[row].last_seen_s = stamp_s
+                    if detections[free[col]].legs_seen:
+                        group[row].legs_seen_s = stamp_s
                     assigned.add(free[col])
                     self.counts['assigned'] += 1
         self.counts['object_detections'] += len(withheld)
@@ -1398,6 +1430,9 @@ class PeopleTracker:
                                      places=((detection.x, detection.y),),
                                      whole_heights=whole_heights, bounds=bounds))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
+            self.tracks[-1].seen_whole = self._seen_whole(detection)
+            if detection.legs_seen:
+                self.tracks[-1].legs_seen_s = stamp_s
         alive = []
         for track in self.tracks:
             coast = self.config.max_coast_s if track.confirmed else \
@@ -1416,6 +1451,15 @@ class PeopleTracker:
         self.tracks = alive
         self.object_memory = [(seen, kept) for seen, kept in self.object_memory
                               if stamp_s - seen <= self.config.max_coast_s]
+        for track in self.tracks:
+            if self._legs_lapsed(track, stamp_s):
+                # Withdrawn: its id ends (markers deleted); unpublished, never seen as a
+                # person, it is a warm object to the tracker again, and lent legs anew must
+                # come in min_hits of min_hits + 1 detections again to publish it (new id).
+                self.ended.append(track.track_id)
+                self.counts['legs_lapsed'] += 1
+                track.confirmed, track.seen_as_person, track.track_id = False, False, 0
+                track.legs_recent = ()
         for track in self.tracks:
             on_legs = self.config.confirm_on_legs and track.hits == 1 and \
                 track.detection is not None and track.detection.legs_under_head and \
