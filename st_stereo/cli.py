@@ -329,6 +329,8 @@ def command_eval_people(args):
     print(eval_people.markdown_table(report))
     print()
     print(eval_people.markdown_timing(report))
+    print()
+    print(eval_people.markdown_tracker(report))
     if args.plot:
         eval_people.plot_floor_plans(tallies, args.plot)
     checks = eval_people.checks(report)

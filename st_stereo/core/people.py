@@ -129,10 +129,11 @@ class PeopleConfig:
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
     legs_lapse_s: float = _field(
-        5.0, 'a track published on its legs alone (never seen whole, never moved min_travel_m) '
-        'whose detections have not stood on legs for this long is withdrawn (its id ends; the '
-        'track goes on unpublished, as a warm object): a warm screen lent legs by passers-by '
-        'is not a person for good; 0: never, s')
+        5.0, 'a track published on lent legs (never seen whole in min_hits detections, never '
+        'moved min_travel_m, legs in under 30 % of its detections) whose legs have not shown '
+        'again in min_hits of min_hits + 1 detections for this long is withdrawn (its id '
+        'ends; the track goes on unpublished): a warm screen lent legs by passers-by is not a '
+        'person for good; 0: never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
@@ -162,7 +163,9 @@ class PeopleConfig:
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
     def __post_init__(self):
-        if not (math.isfinite(self.legs_lapse_s) and self.legs_lapse_s >= 0):
+        if isinstance(self.legs_lapse_s, bool) or \
+                not isinstance(self.legs_lapse_s, (int, float)) or \
+                not (math.isfinite(self.legs_lapse_s) and self.legs_lapse_s >= 0):
             raise ValueError(f'people.legs_lapse_s: expected a number >= 0 (0: never), got '
                              f'{self.legs_lapse_s!r}')
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
@@ -1094,6 +1097,10 @@ def _cluster_detections(evidence, indices, config, legs_only):
 
 
 PLACES_KEPT = 8      # a track's last detections' positions kept (where a warm object is)
+# A track published on legs whose legs showed in fewer than this share of its detections is
+# one lent legs (a screen: 2 of dozens or hundreds), not a person standing on them (the tuning
+# sequences' far person: 61 of 63), when they lapse (``legs_lapse_s``).
+LENT_LEGS_FRACTION = 0.3
 # The places a warm object's track left by a jump to another piece (a screen's other half:
 # its spots, one per SPOT_SPACING_M, the last SPOTS_KEPT), and those of an ended one, hold
 # the object's detections when they come back there within their jitter (0.03-0.05 m on the
@@ -1156,8 +1163,10 @@ class Track:
     head_visible: bool = True     # head_height is its whole detections' median, not a bound
     updated: bool = True
     seen_as_person: bool = False  # head seen once, or legs in min_hits of min_hits + 1
-    seen_whole: bool = False      # a detection not cut by the top edge, head high enough
-    legs_seen_s: float = -math.inf    # stamp of its last detection standing on legs
+    whole_hits: int = 0           # detections not cut by the top edge, head high enough
+    legs_hits: int = 0            # detections standing on legs (legs_seen)
+    legs_seen_s: float = -math.inf    # last stamp with legs in min_hits of min_hits + 1,
+    #                                   or of its publication if later
     legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
     confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
@@ -1244,7 +1253,8 @@ class PeopleTracker:
         track.legs_recent = (track.legs_recent + (detection.legs_seen,))[
             -(self.config.min_hits + 1):]
         track.seen_as_person = track.seen_as_person or self._is_person(track, detection)
-        track.seen_whole = track.seen_whole or self._seen_whole(detection)
+        track.whole_hits += int(self._seen_whole(detection))
+        track.legs_hits += int(detection.legs_seen)
         track.cut_top = detection.cut_top
         track.detection = detection
         track.farthest_m = max(track.farthest_m, track.travel_m)
@@ -1280,17 +1290,22 @@ class PeopleTracker:
 
     def _legs_lapsed(self, track, stamp_s):
         """
-        Whether a published track's only evidence of a person, its legs, has lapsed.
+        Whether a published track's only evidence of a person, lent legs, has lapsed.
 
-        Published on its legs alone (``_is_person``: never seen whole, never moved
-        ``min_travel_m``), detected now, and none of its detections for more than
-        ``legs_lapse_s`` stood on legs: a warm screen cut by the top edge that a passer-by's
-        legs, in front of it in two of three pairs, made a person (and whose pixels the
-        background then stops learning) shows none afterwards, while a far person standing
-        on the floor shows them pair after pair (the tuning sequences: a gap of 0 s).
+        Published on legs (``_is_person``) and on nothing else: seen whole in fewer than
+        ``min_hits`` detections and never ``min_travel_m`` from where it started; legs in
+        fewer than ``LENT_LEGS_FRACTION`` of its detections; detected now; and neither legs in
+        ``min_hits`` of ``min_hits + 1`` detections (what published it) nor its publication
+        (by one whole detection) for more than ``legs_lapse_s``. A warm screen cut by the top
+        edge that a passer-by's legs, in front of it in two of three pairs, made a person (its
+        pixels then kept from the background) shows none afterwards, and single lends now and
+        then do not renew it; a far person standing on the floor shows legs pair after pair
+        (the tuning sequences: 61 of 63).
         """
         return self.config.legs_lapse_s > 0 and track.confirmed and track.updated and \
-            not track.seen_whole and track.farthest_m < self.config.min_travel_m and \
+            track.whole_hits < self.config.min_hits and \
+            track.farthest_m < self.config.min_travel_m and \
+            track.legs_hits < LENT_LEGS_FRACTION * track.hits and \
             stamp_s - track.legs_seen_s > self.config.legs_lapse_s
 
     def predicted_xy(self, stamp_s):
@@ -1406,8 +1421,8 @@ class PeopleTracker:
                 if distance[row, col] <= gate[row, 0]:
                     self._correct(group[row], detections[free[col]])
                     group[row].last_seen_s = stamp_s
-                    if detections[free[col]].legs_seen:
-                        group[row].legs_seen_s = stamp_s
+                    if sum(group[row].legs_recent) >= self.config.min_hits:
+                        group[row].legs_seen_s = stamp_s     # legs as when published
                     assigned.add(free[col])
                     self.counts['assigned'] += 1
         self.counts['object_detections'] += len(withheld)
@@ -1430,9 +1445,8 @@ class PeopleTracker:
                                      places=((detection.x, detection.y),),
                                      whole_heights=whole_heights, bounds=bounds))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
-            self.tracks[-1].seen_whole = self._seen_whole(detection)
-            if detection.legs_seen:
-                self.tracks[-1].legs_seen_s = stamp_s
+            self.tracks[-1].whole_hits = int(self._seen_whole(detection))
+            self.tracks[-1].legs_hits = int(detection.legs_seen)
         alive = []
         for track in self.tracks:
             coast = self.config.max_coast_s if track.confirmed else \
@@ -1453,13 +1467,13 @@ class PeopleTracker:
                               if stamp_s - seen <= self.config.max_coast_s]
         for track in self.tracks:
             if self._legs_lapsed(track, stamp_s):
-                # Withdrawn: its id ends (markers deleted); unpublished, never seen as a
-                # person, it is a warm object to the tracker again, and lent legs anew must
-                # come in min_hits of min_hits + 1 detections again to publish it (new id).
+                # Withdrawn: its id ends (markers deleted); unpublished and never seen as a
+                # person (a warm object to the tracker again when it stayed within
+                # object_radius_m), it needs legs in min_hits of min_hits + 1 detections anew
+                # to be published again, under a new id.
                 self.ended.append(track.track_id)
                 self.counts['legs_lapsed'] += 1
                 track.confirmed, track.seen_as_person, track.track_id = False, False, 0
-                track.legs_recent = ()
         for track in self.tracks:
             on_legs = self.config.confirm_on_legs and track.hits == 1 and \
                 track.detection is not None and track.detection.legs_under_head and \
@@ -1471,6 +1485,8 @@ class PeopleTracker:
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
                 track.confirmed = True
+                # The legs' lapse counts from here at the earliest (published by a head).
+                track.legs_seen_s = max(track.legs_seen_s, stamp_s)
                 track.track_id = self.next_id
                 self.next_id += 1
                 self.counts['started'] += 1

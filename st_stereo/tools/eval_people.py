@@ -91,6 +91,7 @@ class PeopleTally:
     milliseconds: list = dataclasses.field(default_factory=list)   # people stage per pair
     last_hit: dict = dataclasses.field(default_factory=dict)   # track id -> (truth id, pair)
     strict_frames: list = dataclasses.field(default_factory=list)  # frames, nothing excused
+    tracker_counts: dict = dataclasses.field(default_factory=dict)  # PeopleTracker.counts
 
     def add(self, truth_ids, truth_heads, tracks, head_seen=None, hidden_ids=(),
             hidden_heads=()):
@@ -188,7 +189,10 @@ class PeopleTally:
                'height_median_m': stat(self.height, 50), 'height_p95_m': stat(self.height, 95),
                'depth_spread_median_m': stat(self.depth_spread, 50),
                'people_ms_median': stat(self.milliseconds, 50),
-               'people_ms_p95': stat(self.milliseconds, 95)}
+               'people_ms_p95': stat(self.milliseconds, 95),
+               'tracks_started': self.tracker_counts.get('started', 0),
+               'legs_lapsed': self.tracker_counts.get('legs_lapsed', 0),
+               'object_detections': self.tracker_counts.get('object_detections', 0)}
         out.update(self.mot())
         out['mota_strict'] = self.mot(self.strict_frames)['mota'] if self.on_hidden \
             else out['mota']
@@ -246,6 +250,7 @@ class PeopleScoring:
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
         self.tally.add_labelled(labels, heads_world, heads_rectified, model, left.shape,
                                 people.tracks)
+        self.tally.tracker_counts = dict(self.estimator.tracker.counts)
         return people
 
 
@@ -386,6 +391,16 @@ def markdown_timing(report):
     for name, row in report.items():
         lines.append(f'| {name} | {row["pairs"]} | {row["people_ms_median"]:.2f} | '
                      f'{row["people_ms_p95"]:.2f} |')
+    return '\n'.join(lines)
+
+
+def markdown_tracker(report):
+    """Return what the tracker did per sequence (its counts, the node's diagnostics)."""
+    lines = ['| sequence | tracks published | withdrawn when lent legs lapsed | detections '
+             'withheld from a published track for a warm object |', '|---|---:|---:|---:|']
+    for name, row in report.items():
+        lines.append(f'| {name} | {row["tracks_started"]} | {row["legs_lapsed"]} | '
+                     f'{row["object_detections"]} |')
     return '\n'.join(lines)
 
 
