@@ -129,11 +129,11 @@ class PeopleConfig:
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
     legs_lapse_s: float = _field(
-        5.0, 'a track published on lent legs (never seen whole in min_hits detections, never '
-        'moved min_travel_m, legs in under 30 % of its detections) whose legs have not shown '
-        'again in min_hits of min_hits + 1 detections for this long is withdrawn (its id '
-        'ends; the track goes on unpublished): a warm screen lent legs by passers-by is not a '
-        'person for good; 0: never, s')
+        5.0, 'a published track on thin evidence (never moved min_travel_m, legs or head seen '
+        'in under 30 % of its detections) that has shown neither legs in min_hits of '
+        'min_hits + 1 detections nor its head (whole) for this long since its publication is '
+        'withdrawn (its id ends; the track goes on unpublished): a warm screen lent legs by '
+        'passers-by is not a person for good; 0: never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
@@ -1097,9 +1097,9 @@ def _cluster_detections(evidence, indices, config, legs_only):
 
 
 PLACES_KEPT = 8      # a track's last detections' positions kept (where a warm object is)
-# A track published on legs whose legs showed in fewer than this share of its detections is
-# one lent legs (a screen: 2 of dozens or hundreds), not a person standing on them (the tuning
-# sequences' far person: 61 of 63), when they lapse (``legs_lapse_s``).
+# A published track whose legs or head (whole) showed in fewer than this share of its
+# detections is one lent them (a screen: 2 of dozens or hundreds), not a person standing on
+# its legs (the tuning sequences' far person: 61 of 63), when they lapse (``legs_lapse_s``).
 LENT_LEGS_FRACTION = 0.3
 # The places a warm object's track left by a jump to another piece (a screen's other half:
 # its spots, one per SPOT_SPACING_M, the last SPOTS_KEPT), and those of an ended one, hold
@@ -1165,8 +1165,8 @@ class Track:
     seen_as_person: bool = False  # head seen once, or legs in min_hits of min_hits + 1
     whole_hits: int = 0           # detections not cut by the top edge, head high enough
     legs_hits: int = 0            # detections standing on legs (legs_seen)
-    legs_seen_s: float = -math.inf    # last stamp with legs in min_hits of min_hits + 1,
-    #                                   or of its publication if later
+    legs_seen_s: float = -math.inf    # last stamp with legs in min_hits of min_hits + 1, a
+    #                                   whole detection, or its publication
     legs_recent: tuple = ()       # legs_seen of its last min_hits + 1 detections
     confirmed: bool = False       # published (min_hits, and seen as a person or min_travel_m)
     cut_top: bool = False         # the last detection was cut by the image's top edge
@@ -1292,20 +1292,19 @@ class PeopleTracker:
         """
         Whether a published track's only evidence of a person, lent legs, has lapsed.
 
-        Published on legs (``_is_person``) and on nothing else: seen whole in fewer than
-        ``min_hits`` detections and never ``min_travel_m`` from where it started; legs in
-        fewer than ``LENT_LEGS_FRACTION`` of its detections; detected now; and neither legs in
-        ``min_hits`` of ``min_hits + 1`` detections (what published it) nor its publication
-        (by one whole detection) for more than ``legs_lapse_s``. A warm screen cut by the top
-        edge that a passer-by's legs, in front of it in two of three pairs, made a person (its
-        pixels then kept from the background) shows none afterwards, and single lends now and
-        then do not renew it; a far person standing on the floor shows legs pair after pair
-        (the tuning sequences: 61 of 63).
+        Never ``min_travel_m`` from where it started; legs or a whole body (``_seen_whole``)
+        in fewer than ``LENT_LEGS_FRACTION`` of its detections; detected now; and for more
+        than ``legs_lapse_s`` neither legs in ``min_hits`` of ``min_hits + 1`` detections
+        (what published it), nor a whole detection, nor its publication. A warm screen cut by
+        the top edge that a passer-by's legs, in front of it in two of three pairs, made a
+        person (its pixels then kept from the background) shows none afterwards, and single
+        lends now and then do not renew it, nor does a person standing up in front of it for
+        a moment keep it for longer than the lapse; a far person standing on the floor shows
+        legs pair after pair (the tuning sequences: 61 of 63), one nearer its head.
         """
         return self.config.legs_lapse_s > 0 and track.confirmed and track.updated and \
-            track.whole_hits < self.config.min_hits and \
             track.farthest_m < self.config.min_travel_m and \
-            track.legs_hits < LENT_LEGS_FRACTION * track.hits and \
+            track.legs_hits + track.whole_hits < LENT_LEGS_FRACTION * track.hits and \
             stamp_s - track.legs_seen_s > self.config.legs_lapse_s
 
     def predicted_xy(self, stamp_s):
@@ -1421,8 +1420,9 @@ class PeopleTracker:
                 if distance[row, col] <= gate[row, 0]:
                     self._correct(group[row], detections[free[col]])
                     group[row].last_seen_s = stamp_s
-                    if sum(group[row].legs_recent) >= self.config.min_hits:
-                        group[row].legs_seen_s = stamp_s     # legs as when published
+                    if sum(group[row].legs_recent) >= self.config.min_hits or \
+                            self._seen_whole(detections[free[col]]):
+                        group[row].legs_seen_s = stamp_s     # seen as a person now
                     assigned.add(free[col])
                     self.counts['assigned'] += 1
         self.counts['object_detections'] += len(withheld)
