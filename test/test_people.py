@@ -457,6 +457,31 @@ def test_a_person_standing_up_in_front_of_a_screen_keeps_it_only_for_the_lapse(w
     assert tracker.counts['legs_lapsed'] == 1
 
 
+@pytest.mark.parametrize('far_pairs, lapsed', [(1, 1), (3, 0)])
+def test_a_screen_that_took_one_far_detection_has_not_walked(far_pairs, lapsed):
+    # A published screen, hidden for 1 s (its gate grows while it coasts), takes a
+    # passer-by's whole detections, ``far_pairs`` of them 1.1 m away, follows the passer back
+    # to it and takes the screen's detections again: one detection that far is not walking
+    # min_travel_m (it would exempt the screen from the lapse for good); min_hits or more
+    # that far are.
+    tracker = PeopleTracker(PeopleConfig())
+    screen = Detection(1.3, 4.5, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True)
+    back_from = 29 + far_pairs
+    for index, t in enumerate(np.arange(0.0, 14.0, 0.115)):
+        detections = [dataclasses.replace(screen, legs_seen=index in (10, 11))]
+        if 20 <= index < 29:
+            detections = []
+        elif 29 <= index < back_from + 4:
+            away = 1.0 if index < back_from else 1.0 - 0.2 * (index - back_from + 1)
+            detections = [Detection(1.3 - 0.4 * away, 4.5 - 1.03 * away, 1.6, 40, 1.0,
+                                    np.eye(2) * 1e-3)]
+        tracker.update(detections, t)
+    # One track took every detection (none started another, none coasted to its end).
+    assert tracker.counts['unassigned_detections'] == 1 and tracker.counts['ended'] == 0
+    assert tracker.counts['legs_lapsed'] == lapsed
+
+
 @pytest.mark.parametrize('far_person_legs', [True, False])
 def test_the_legs_lapse_spares_people_seen_whole_or_walking(far_person_legs):
     # A person seen whole, or one that walked min_travel_m, is a person by that, not by

@@ -129,11 +129,12 @@ class PeopleConfig:
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
     legs_lapse_s: float = _field(
-        5.0, 'a published track on thin evidence (never moved min_travel_m, legs or head seen '
-        'in under 30 % of its detections) that has shown neither legs in min_hits of '
-        'min_hits + 1 detections nor its head (whole) for this long since its publication is '
-        'withdrawn (its id ends; the track goes on unpublished): a warm screen lent legs by '
-        'passers-by is not a person for good; 0: never, s')
+        5.0, 'a published track on thin evidence (not min_travel_m from its start in min_hits '
+        'detections, legs or head seen in under 30 % of its detections) that has shown '
+        'neither legs in min_hits of min_hits + 1 detections nor its head (whole) for this '
+        'long since its publication is withdrawn (its id ends; the track goes on '
+        'unpublished): a warm screen lent legs by passers-by is not a person for good; 0: '
+        'never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
@@ -1174,6 +1175,7 @@ class Track:
     detection: Detection = None   # the last detection it took
     start: np.ndarray = None      # first floor position
     farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
+    far_hits: int = 0             # detections it took min_travel_m or more from ``start``
     places: tuple = ()            # floor positions of its last PLACES_KEPT detections
     spots: tuple = ()             # places it left by a jump (a warm object's other piece)
     whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
@@ -1258,6 +1260,7 @@ class PeopleTracker:
         track.cut_top = detection.cut_top
         track.detection = detection
         track.farthest_m = max(track.farthest_m, track.travel_m)
+        track.far_hits += int(track.travel_m >= self.config.min_travel_m)
         if self.is_warm_object(track) and track.places and min(
                 math.hypot(detection.x - x, detection.y - y) for x, y in track.places) > \
                 self.config.person_radius_m:
@@ -1292,18 +1295,20 @@ class PeopleTracker:
         """
         Whether a published track's only evidence of a person, lent legs, has lapsed.
 
-        Never ``min_travel_m`` from where it started; legs or a whole body (``_seen_whole``)
-        in fewer than ``LENT_LEGS_FRACTION`` of its detections; detected now; and for more
-        than ``legs_lapse_s`` neither legs in ``min_hits`` of ``min_hits + 1`` detections
-        (what published it), nor a whole detection, nor its publication. A warm screen cut by
-        the top edge that a passer-by's legs, in front of it in two of three pairs, made a
-        person (its pixels then kept from the background) shows none afterwards, and single
-        lends now and then do not renew it, nor does a person standing up in front of it for
-        a moment keep it for longer than the lapse; a far person standing on the floor shows
-        legs pair after pair (the tuning sequences: 61 of 63), one nearer its head.
+        Not ``min_travel_m`` from where it started in ``min_hits`` detections (a screen's
+        track that took one passer-by's detection has not walked); legs or a whole body
+        (``_seen_whole``) in fewer than ``LENT_LEGS_FRACTION`` of its detections; detected
+        now; and for more than ``legs_lapse_s`` neither legs in ``min_hits`` of
+        ``min_hits + 1`` detections (what published it), nor a whole detection, nor its
+        publication. A warm screen cut by the top edge that a passer-by's legs, in front of
+        it in two of three pairs, made a person (its pixels then kept from the background)
+        shows none afterwards, and single lends now and then do not renew it, nor does a
+        person standing up in front of it for a moment keep it for longer than the lapse; a
+        far person standing on the floor shows legs pair after pair (the tuning sequences:
+        61 of 63), one nearer its head.
         """
         return self.config.legs_lapse_s > 0 and track.confirmed and track.updated and \
-            track.farthest_m < self.config.min_travel_m and \
+            track.far_hits < self.config.min_hits and \
             track.legs_hits + track.whole_hits < LENT_LEGS_FRACTION * track.hits and \
             stamp_s - track.legs_seen_s > self.config.legs_lapse_s
 
