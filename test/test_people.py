@@ -14,6 +14,7 @@ import types
 import numpy as np
 import pytest
 from st_stereo.core.people import (centred_on_silhouette, detect_people, Detection,
+                                   gated_assignment,
                                    legs_fraction, legs_only_bodies, PeopleConfig, PeopleEstimator,
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
                                    silhouette_runs, silhouette_shift_xy, standing_on_legs,
@@ -915,6 +916,57 @@ def test_an_unconfirmed_track_does_not_coast_on_to_take_a_stray_detection():
     ghost = Detection(0.55, 3.0, 1.0, 23, 1.0, np.eye(2) * 1e-3)
     assert tracker.update([ghost], 4.6) == []
     assert tracker.counts['started'] == 0
+
+
+def test_the_assignment_leaves_a_track_out_rather_than_push_another_off_its_detection():
+    # A coasting track allowed only the detection another track sits on (0.01 m from it),
+    # 1.3 m from its own prediction: leaving it out costs the largest gate (1.6 m), less than
+    # the 1.3 + 0.7 m of pushing the other track onto a detection 0.7 m off.
+    assert gated_assignment([[np.inf, 1.3], [0.7, 0.01]], [1.6, 0.8], 1.6) == [(1, 1)]
+    # Nothing lost where every track has its own detection, and none beyond its gate.
+    assert sorted(gated_assignment([[0.1, 0.9], [0.7, 0.2]], [0.8, 0.8], 1.6)) == \
+        [(0, 0), (1, 1)]
+    assert gated_assignment([[0.9]], [0.8], 1.6) == []
+    assert gated_assignment(np.zeros((2, 0)), [0.8, 0.8], 1.6) == []
+    # Two tracks wanting one detection: the nearer takes it, whatever their gates (crossing:
+    # with each track's own gate as its cost, the one with the larger gate took it).
+    assert gated_assignment([[0.5], [0.3]], [0.8, 0.8], 1.6) == [(1, 0)]
+    assert gated_assignment([[0.09], [0.16]], [0.9, 0.99], 1.6) == [(0, 0)]
+    with pytest.raises(ValueError, match='miss_cost'):
+        gated_assignment([[0.1]], [0.9], 0.8)
+
+
+def test_two_people_standing_side_by_side_keep_their_ids_while_a_walker_hides_one():
+    # open_office, traced: two people cut by the top edge stand 0.73 m apart; a walker in
+    # front hides part of the right one (its detection 0.2 m off, giving its track a
+    # velocity), then all of it for five pairs. When it shows again, without its legs, its
+    # track, coasting 0.6 m away and lost for a body without legs, took the left person's
+    # detection and pushed the left person's track onto the right one: the ids swapped.
+    def standing(x, y, legs=True):
+        return Detection(x, y, 1.2, 30, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                         cut_top=True, legs_seen=legs)
+
+    right, left = (0.20, 4.29), (-0.50, 4.49)
+    tracker = PeopleTracker()
+    times = np.arange(0, 3.1, 0.115)
+    ids = {}
+    for t in times:
+        if t < 2.25:
+            detections = [standing(*right), standing(*left)]
+        elif t < 2.4:
+            detections = [standing(0.42, 4.35, legs=False), standing(*left)]
+        elif t < 2.95:
+            detections = [standing(-0.60, 4.62)]
+        else:
+            detections = [standing(-0.60, 4.60), standing(0.09, 4.35, legs=False)]
+        published = tracker.update(detections, t)
+        if t < 2.25 and len(published) == 2:
+            ids = {track.track_id: tuple(track.state[:2]) for track in published}
+    assert len(ids) == 2
+    left_id = min(ids, key=lambda k: math.hypot(ids[k][0] - left[0], ids[k][1] - left[1]))
+    on_left = [track.track_id for track in tracker.tracks if track.updated and
+               math.hypot(track.state[0] - left[0], track.state[1] - left[1]) < 0.3]
+    assert on_left == [left_id]
 
 
 def _walker_past_a_split_screen(config, walker_stops_s=2.0, end_s=5.0):
