@@ -1227,7 +1227,9 @@ def gated_assignment(distance, gate, miss_cost):
     takes it 1.3 m away and pushes that track onto a detection 0.7 m off, its neighbour's
     (found on ``open_office``: two people standing 0.7 m apart swapped ids while a walker
     passed in front of them). A cost per track, its own gate, would let a track with the
-    larger gate take a detection from a nearer one.
+    larger gate take a detection from a nearer one. A trade-off (docs/people.md, step 5):
+    two tracks coasting past people who stopped while hidden can now leave the right pairing
+    for a cheaper single one.
 
     Parameters
     ----------
