@@ -858,6 +858,52 @@ def walk(start, velocity, times, head=1.7):
                       np.eye(2) * 1e-3) for t in times]
 
 
+def _walker_stops_beside(still, walker_speed=1.0, end_s=6.0):
+    """Run a walker up to a still person, stopping 0.28 m beside them (one detection then)."""
+    tracker, times = PeopleTracker(), np.arange(0, end_s, 0.115)
+    start, stop = np.array([0.0, 3.0]), np.array([still[0] - 0.2, still[1] + 0.2])
+    travel = float(np.hypot(*(stop - start)))
+    published = []
+    for t in times:
+        walker = start + (stop - start) * min(1.0, walker_speed * t / travel)
+        apart = math.dist(walker, still)
+        detections = [Detection(*walker, 1.5, 90, 1.0, np.eye(2) * 1e-3)]
+        if apart > 0.6:         # closer, the still person's points join the walker's peak
+            detections.append(Detection(*still, 1.6, 60, 1.0, np.eye(2) * 1e-3))
+        published.append((t, apart, {track.track_id: tuple(track.position)
+                                     for track in tracker.update(detections, t)}))
+    return tracker, published
+
+
+def test_a_still_person_merged_into_a_neighbours_detection_keeps_the_id():
+    # The recording: a walker stops 0.28 m beside a person who sits down; from 0.5 m apart
+    # the two make one detection, and the still person's track ended.
+    still = (1.0, 2.4)
+    tracker, published = _walker_stops_beside(still)
+    ids = published[3][2]
+    still_id = min(ids, key=lambda k: math.dist(ids[k], still))
+    for t, apart, tracks in published[3:]:
+        assert still_id in tracks and math.dist(tracks[still_id], still) < 0.05, (t, tracks)
+        assert len(tracks) == 2
+    assert tracker.counts['held_beside'] > 20
+
+
+def test_a_moving_track_is_not_held_beside_another():
+    # A walker whose detections stop next to a standing person's is not at rest: it coasts
+    # and is withdrawn after publish_coast_s as before.
+    config = PeopleConfig()
+    tracker, times = PeopleTracker(config), np.arange(0, 4.0, 0.115)
+    still = Detection(1.0, 2.4, 1.6, 60, 1.0, np.eye(2) * 1e-3)
+    walker = walk((-0.5, 2.6), (1.0, 0.0), times, head=1.5)
+    last = {}
+    for t, moving in zip(times, walker):
+        detections = [still] + ([moving] if t < 1.1 else [])     # last 0.5 m from it
+        last[t] = {track.track_id for track in tracker.update(detections, t)}
+    assert len(last[times[times < 1.1][-1]]) == 2
+    assert all(len(ids) == 1 for t, ids in last.items() if t > 1.1 + config.publish_coast_s)
+    assert tracker.counts['held_beside'] == 0
+
+
 def test_two_people_crossing_keep_their_ids_and_velocity():
     times = np.arange(0, 4, 0.115)
     a = walk((-1.5, 3.0), (1.0, 0.1), times)
@@ -1286,6 +1332,7 @@ def test_eval_people_places_people_with_the_rig_pose_it_is_given():
     row = truth.row()
     assert row['tracks_started'] == truth.tracker_counts['started'] >= 1
     assert row['legs_lapsed'] == 0
+    assert row['held_beside'] == truth.tracker_counts['held_beside']
     table = markdown_tracker({'two_people': row})
     assert f'| two_people | {row["tracks_started"]} | 0 | ' in table
 

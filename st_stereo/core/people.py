@@ -1108,6 +1108,7 @@ LENT_LEGS_FRACTION = 0.3
 # the object's detections when they come back there within their jitter (0.03-0.05 m on the
 # simulated screens): a person standing 0.2 m in front of it is not it.
 REMEMBERED_RADIUS_M = 0.1
+HOLD_MAX_SPEED = 0.3      # m/s: a track this slow at its last detection is a person at rest
 SPOT_SPACING_M = 0.05
 SPOTS_KEPT = 32
 
@@ -1181,6 +1182,7 @@ class Track:
     spots: tuple = ()             # places it left by a jump (a warm object's other piece)
     whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
     bounds: tuple = ()            # its last head_height_pairs detections' lower bounds (-inf)
+    corrected: tuple = None       # (state, covariance) after its last detection
 
     def __post_init__(self):
         if self.start is None:
@@ -1279,7 +1281,7 @@ class PeopleTracker:
         self.object_memory = []      # (last seen s, spots) of warm objects' ended tracks
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
                        'unassigned_detections': 0, 'time_backwards': 0,
-                       'object_detections': 0, 'legs_lapsed': 0}
+                       'object_detections': 0, 'legs_lapsed': 0, 'held_beside': 0}
 
     def _predict(self, dt):
         f = np.eye(4)
@@ -1322,6 +1324,7 @@ class PeopleTracker:
         track.confidence = detection.confidence
         track.points = detection.points
         track.hits += 1
+        track.corrected = (track.state.copy(), track.covariance.copy())
         track.updated = True
 
     def _is_person(self, track, detection):
@@ -1427,6 +1430,31 @@ class PeopleTracker:
         """Return the cap of every track's gate, twice ``gate_m`` (``gate``), m."""
         return 2.0 * self.config.gate_m
 
+    def _hold_beside(self, taken, stamp_s):
+        """
+        Keep published a still person whose detection merged into a neighbour's (``held_beside``).
+
+        A confirmed track without a detection now, at rest at its last detection (speed under
+        ``HOLD_MAX_SPEED``), with a detection another confirmed track took (``taken``) within
+        twice ``person_radius_m`` of it: its points went into that neighbour's cluster (two
+        people closer than about 0.6 m make one occupancy peak, the one with more points'),
+        so it is held at its last detection, velocity zero, as seen now; once the neighbour
+        moves away it coasts as any track. The recording: a walker stops 0.28 m beside a
+        person who sits down; that person's track ended.
+        """
+        reach = 2.0 * self.config.person_radius_m
+        for track in self.tracks:
+            if not track.confirmed or track.updated or track.corrected is None:
+                continue
+            state, covariance = track.corrected
+            if math.hypot(state[2], state[3]) > HOLD_MAX_SPEED or not any(
+                    math.hypot(d.x - state[0], d.y - state[1]) <= reach for d in taken):
+                continue
+            track.state = np.array([state[0], state[1], 0.0, 0.0])
+            track.covariance = covariance.copy()
+            track.last_seen_s = stamp_s
+            self.counts['held_beside'] += 1
+
     def update(self, detections, stamp_s):
         """
         Feed one pair's detections; return the published tracks.
@@ -1444,7 +1472,7 @@ class PeopleTracker:
         dt = 0.0 if self.stamp_s is None or stamp_s < self.stamp_s else stamp_s - self.stamp_s
         self.stamp_s = stamp_s
         self._predict(dt)
-        assigned = set()
+        assigned, beside = set(), []
         to_object = self.object_distances(detections)
         withheld = set()
         # Confirmed tracks first (a person walking up to a warm screen keeps the id; the
@@ -1483,8 +1511,11 @@ class PeopleTracker:
                         self._seen_whole(detections[free[col]]):
                     group[row].legs_seen_s = stamp_s     # seen as a person now
                 assigned.add(free[col])
+                if group[row].confirmed:
+                    beside.append(detections[free[col]])
                 self.counts['assigned'] += 1
         self.counts['object_detections'] += len(withheld)
+        self._hold_beside(beside, stamp_s)
         for index, detection in enumerate(detections):
             if index in assigned:
                 continue
