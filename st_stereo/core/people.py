@@ -113,9 +113,11 @@ class PeopleConfig:
     gate_m: float = _field(
         0.8, "farthest a detection may be from a track's prediction (plus 3 sigma of it), m")
     max_coast_s: float = _field(
-        1.5, 'a track without detections ends after this, s')
+        1.5, 'a track without detections (and not held beside a neighbour, '
+        'hold_beside_points) ends after this, s')
     publish_coast_s: float = _field(
-        0.3, 'a track without detections is published for this long (kept to max_coast_s), s')
+        0.3, 'a track without detections (and not held beside a neighbour) is published for '
+        'this long (kept to max_coast_s), s')
     unconfirmed_coast_s: float = _field(
         0.3, 'a track not yet published ends after this long without detections (its gate '
         'grows while it coasts: it would take a stray detection metres away), s')
@@ -161,6 +163,12 @@ class PeopleConfig:
     max_range_m: float = _field(
         15.0, 'points farther than this from the camera, horizontally, are not used (a '
         'near-zero disparity puts a point kilometres away), m')
+    hold_beside_points: int = _field(
+        8, 'a published track whose head has been seen (min_hits whole detections), at rest '
+        '(under 0.3 m/s) at its last detection, without a detection now, is held there while a '
+        "published neighbour's detection lies within twice person_radius_m of it and at least "
+        'this many warm body points lie within person_radius_m / 2 of it (its points joined the '
+        "neighbour's cluster: two people closer than about 0.6 m make one); 0: off")
     acceleration_sigma: float = _field(
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
@@ -193,6 +201,11 @@ class PeopleConfig:
                 not isinstance(self.object_min_hits, int) or self.object_min_hits < 0:
             raise ValueError(f'people.object_min_hits: expected an integer >= 0 (0: off), got '
                              f'{self.object_min_hits!r}')
+        if isinstance(self.hold_beside_points, bool) or \
+                not isinstance(self.hold_beside_points, (int, np.integer)) or \
+                self.hold_beside_points < 0:
+            raise ValueError(f'people.hold_beside_points: expected an integer >= 0 (0: off), '
+                             f'got {self.hold_beside_points!r}')
         if not 0.0 <= self.legs_min_fraction <= 1.0:
             raise ValueError(f'people.legs_min_fraction: expected 0..1, got '
                              f'{self.legs_min_fraction!r}')
@@ -1183,6 +1196,7 @@ class Track:
     whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
     bounds: tuple = ()            # its last head_height_pairs detections' lower bounds (-inf)
     corrected: tuple = None       # (state, covariance) after its last detection
+    held_s: float = -math.inf     # last stamp it was held beside a neighbour (_hold_beside)
 
     def __post_init__(self):
         if self.start is None:
@@ -1430,37 +1444,48 @@ class PeopleTracker:
         """Return the cap of every track's gate, twice ``gate_m`` (``gate``), m."""
         return 2.0 * self.config.gate_m
 
-    def _hold_beside(self, taken, stamp_s):
+    def _hold_beside(self, taken, stamp_s, support):
         """
-        Keep published a still person whose detection merged into a neighbour's (``held_beside``).
+        Keep published a still person whose points joined a neighbour's cluster (``held_beside``).
 
-        A confirmed track without a detection now, at rest at its last detection (speed under
-        ``HOLD_MAX_SPEED``), with a detection another confirmed track took (``taken``) within
-        twice ``person_radius_m`` of it: its points went into that neighbour's cluster (two
-        people closer than about 0.6 m make one occupancy peak, the one with more points'),
-        so it is held at its last detection, velocity zero, as seen now; once the neighbour
-        moves away it coasts as any track. The recording: a walker stops 0.28 m beside a
-        person who sits down; that person's track ended.
+        A confirmed track that has shown its head (``min_hits`` whole detections), without a
+        detection now, at rest at its last one (speed under ``HOLD_MAX_SPEED``), with a
+        detection another confirmed track took now (``taken``) within twice
+        ``person_radius_m`` of it, and at least ``hold_beside_points`` warm body points within
+        ``person_radius_m / 2`` of it (``support(x, y)``: someone is still there), is held at
+        its last detection, velocity zero: published and kept alive as if seen now
+        (``held_s``), but not seen for ``reacquire_cut_s`` or the lent legs' lapse. Two people
+        closer than about 0.6 m make one occupancy peak, the one with more points': the
+        recording's person who sits down while a walker stops 0.28 m beside them had no
+        detection and their track ended. Once the points at its place are gone (the person
+        left) or the neighbour moved away, it coasts like any track.
         """
+        if not self.config.hold_beside_points or support is None:
+            return
         reach = 2.0 * self.config.person_radius_m
         for track in self.tracks:
-            if not track.confirmed or track.updated or track.corrected is None:
+            if not track.confirmed or track.updated or track.corrected is None or \
+                    track.whole_hits < self.config.min_hits:
                 continue
             state, covariance = track.corrected
             if math.hypot(state[2], state[3]) > HOLD_MAX_SPEED or not any(
-                    math.hypot(d.x - state[0], d.y - state[1]) <= reach for d in taken):
+                    math.hypot(d.x - state[0], d.y - state[1]) <= reach for d in taken) or \
+                    support(state[0], state[1]) < self.config.hold_beside_points:
                 continue
             track.state = np.array([state[0], state[1], 0.0, 0.0])
             track.covariance = covariance.copy()
-            track.last_seen_s = stamp_s
+            track.held_s = stamp_s
             self.counts['held_beside'] += 1
 
-    def update(self, detections, stamp_s):
+    def update(self, detections, stamp_s, support=None):
         """
         Feed one pair's detections; return the published tracks.
 
-        Published: confirmed (``min_hits``) and seen within ``publish_coast_s``; the others
-        are kept for their id until ``max_coast_s``.
+        Published: confirmed (``min_hits``) and seen (or held, ``_hold_beside``) within
+        ``publish_coast_s``; the others are kept for their id until ``max_coast_s``.
+        ``support(x, y)``: the number of warm body points near a floor position this pair
+        (``PeopleEstimator`` gives it when it has the image), for ``_hold_beside``; None:
+        nothing is held.
         """
         self.ended = []
         if self.stamp_s is not None and stamp_s < self.stamp_s:
@@ -1515,7 +1540,7 @@ class PeopleTracker:
                     beside.append(detections[free[col]])
                 self.counts['assigned'] += 1
         self.counts['object_detections'] += len(withheld)
-        self._hold_beside(beside, stamp_s)
+        self._hold_beside(beside, stamp_s, support)
         for index, detection in enumerate(detections):
             if index in assigned:
                 continue
@@ -1541,7 +1566,7 @@ class PeopleTracker:
         for track in self.tracks:
             coast = self.config.max_coast_s if track.confirmed else \
                 self.config.unconfirmed_coast_s
-            if stamp_s - track.last_seen_s > coast:
+            if stamp_s - max(track.last_seen_s, track.held_s) > coast:
                 if track.confirmed:
                     self.ended.append(track.track_id)
                     self.counts['ended'] += 1
@@ -1582,7 +1607,7 @@ class PeopleTracker:
                 self.counts['started'] += 1
         confirmed = [t for t in self.tracks if t.confirmed]
         return [t for t in confirmed
-                if stamp_s - t.last_seen_s <= self.config.publish_coast_s]
+                if stamp_s - max(t.last_seen_s, t.held_s) <= self.config.publish_coast_s]
 
 
 @dataclasses.dataclass
@@ -1688,9 +1713,21 @@ class PeopleEstimator:
             self.counts['silhouette_not_checked'] += len(detections)
         if warm is not None:
             detections = [self._head_above(d, warm, pixels) for d in detections]
-        tracks = self.tracker.update(detections, stamp_s)
+        tracks = self.tracker.update(detections, stamp_s,
+                                     None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
+
+    def _warm_support(self, points):
+        """Return ``support(x, y)``: the warm body points within ``person_radius_m / 2``."""
+        config = self.config
+        body = points[(points[:, 2] >= config.min_point_height_m) &
+                      (points[:, 2] <= config.max_point_height_m), :2]
+        radius = 0.5 * config.person_radius_m
+
+        def support(x, y):
+            return int(np.count_nonzero(np.hypot(body[:, 0] - x, body[:, 1] - y) <= radius))
+        return support
 
     def _head_above(self, detection, warm, pixels):
         """Mark a whole detection whose silhouette reaches the top row (``head_above``)."""
