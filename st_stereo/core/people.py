@@ -164,7 +164,7 @@ class PeopleConfig:
         15.0, 'points farther than this from the camera, horizontally, are not used (a '
         'near-zero disparity puts a point kilometres away), m')
     hold_beside_points: int = _field(
-        8, 'a published track whose head has been seen (min_hits whole detections), at rest '
+        8, 'a published track whose head has been seen (10 whole detections), at rest '
         '(under 0.3 m/s) at its last detection, without a detection now, is held there while a '
         "published neighbour's detection lies within twice person_radius_m of it and at least "
         'this many warm body points lie within person_radius_m / 2 of it (its points joined the '
@@ -1122,6 +1122,7 @@ LENT_LEGS_FRACTION = 0.3
 # simulated screens): a person standing 0.2 m in front of it is not it.
 REMEMBERED_RADIUS_M = 0.1
 HOLD_MAX_SPEED = 0.3      # m/s: a track this slow at its last detection is a person at rest
+HOLD_MIN_WHOLE_HITS = 10  # whole detections (over a second) before a track can be held
 SPOT_SPACING_M = 0.05
 SPOTS_KEPT = 32
 
@@ -1448,11 +1449,12 @@ class PeopleTracker:
         """
         Keep published a still person whose points joined a neighbour's cluster (``held_beside``).
 
-        A confirmed track that has shown its head (``min_hits`` whole detections), without a
-        detection now, at rest at its last one (speed under ``HOLD_MAX_SPEED``), with a
-        detection another confirmed track took now (``taken``) within twice
+        A confirmed track that has shown its head (``HOLD_MIN_WHOLE_HITS`` whole detections),
+        without a detection now, at rest at its last one (speed under ``HOLD_MAX_SPEED``),
+        with a detection another confirmed track took now (``taken``) within twice
         ``person_radius_m`` of it, and at least ``hold_beside_points`` warm body points within
-        ``person_radius_m / 2`` of it (``support(x, y)``: someone is still there), is held at
+        ``person_radius_m / 2`` of it nearer to it than to those detections
+        (``support(x, y, others)``: someone is still there), is held at
         its last detection, velocity zero: published and kept alive as if seen now
         (``held_s``), but not seen for ``reacquire_cut_s`` or the lent legs' lapse. Two people
         closer than about 0.6 m make one occupancy peak, the one with more points': the
@@ -1465,12 +1467,13 @@ class PeopleTracker:
         reach = 2.0 * self.config.person_radius_m
         for track in self.tracks:
             if not track.confirmed or track.updated or track.corrected is None or \
-                    track.whole_hits < self.config.min_hits:
+                    track.whole_hits < HOLD_MIN_WHOLE_HITS:
                 continue
             state, covariance = track.corrected
-            if math.hypot(state[2], state[3]) > HOLD_MAX_SPEED or not any(
-                    math.hypot(d.x - state[0], d.y - state[1]) <= reach for d in taken) or \
-                    support(state[0], state[1]) < self.config.hold_beside_points:
+            near = [(d.x, d.y) for d in taken
+                    if math.hypot(d.x - state[0], d.y - state[1]) <= reach]
+            if math.hypot(state[2], state[3]) > HOLD_MAX_SPEED or not near or \
+                    support(state[0], state[1], near) < self.config.hold_beside_points:
                 continue
             track.state = np.array([state[0], state[1], 0.0, 0.0])
             track.covariance = covariance.copy()
@@ -1483,9 +1486,9 @@ class PeopleTracker:
 
         Published: confirmed (``min_hits``) and seen (or held, ``_hold_beside``) within
         ``publish_coast_s``; the others are kept for their id until ``max_coast_s``.
-        ``support(x, y)``: the number of warm body points near a floor position this pair
-        (``PeopleEstimator`` gives it when it has the image), for ``_hold_beside``; None:
-        nothing is held.
+        ``support(x, y, others)``: the number of warm body points at a floor position this
+        pair, not nearer to any of ``others`` (``PeopleEstimator`` gives it when it has the
+        image), for ``_hold_beside``; None: nothing is held.
         """
         self.ended = []
         if self.stamp_s is not None and stamp_s < self.stamp_s:
@@ -1502,7 +1505,11 @@ class PeopleTracker:
         withheld = set()
         # Confirmed tracks first (a person walking up to a warm screen keeps the id; the
         # screen's unconfirmed track gets what is left).
-        for group in ([t for t in self.tracks if t.confirmed],
+        # A track held beside a neighbour (``_hold_beside``) since it was last seen comes after
+        # the other confirmed ones: it must not take their detections.
+        held = [t.held_s > t.last_seen_s for t in self.tracks]
+        for group in ([t for t, h in zip(self.tracks, held) if t.confirmed and not h],
+                      [t for t, h in zip(self.tracks, held) if t.confirmed and h],
                       [t for t in self.tracks if not t.confirmed]):
             free = [i for i in range(len(detections)) if i not in assigned]
             if not group or not free:
@@ -1719,14 +1726,25 @@ class PeopleEstimator:
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
 
     def _warm_support(self, points):
-        """Return ``support(x, y)``: the warm body points within ``person_radius_m / 2``."""
+        """
+        Return ``support(x, y, others)``: the warm body points of a place, not its neighbours'.
+
+        The points (0.6-2.3 m above the floor, ``min_point_height_m``, ``max_point_height_m``)
+        within ``person_radius_m / 2`` of ``(x, y)`` that lie nearer to it than to every floor
+        position in ``others`` (the neighbours' detections): a neighbour's own points that
+        spill towards the place do not count.
+        """
         config = self.config
         body = points[(points[:, 2] >= config.min_point_height_m) &
                       (points[:, 2] <= config.max_point_height_m), :2]
         radius = 0.5 * config.person_radius_m
 
-        def support(x, y):
-            return int(np.count_nonzero(np.hypot(body[:, 0] - x, body[:, 1] - y) <= radius))
+        def support(x, y, others=()):
+            distance = np.hypot(body[:, 0] - x, body[:, 1] - y)
+            own = distance <= radius
+            for ox, oy in others:
+                own &= distance < np.hypot(body[:, 0] - ox, body[:, 1] - oy)
+            return int(np.count_nonzero(own))
         return support
 
     def _head_above(self, detection, warm, pixels):
