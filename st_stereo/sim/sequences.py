@@ -379,6 +379,23 @@ def standard_sequences():
                      start=0.5)),
             duration_s=8.0, rig=realistic_rig(), room='open_office', right_phase_s=0.045,
             right_drift_ppm=-50.0),
+        # Held out of the people stage: made 2026-12-07, before meeting_room (held out until
+        # then) was traced and became a tuning sequence of the people stage; run only after
+        # the changes that tracing led to.
+        'stand_up_meeting': SequenceSpec(
+            'stand_up_meeting', 'held out: four people in the meeting room; one walks away to '
+            'stand far off at the right, one stands far off at the left all along, one walks '
+            'across near the rig, one walks in from far off and comes nearer',
+            (_walker([(-0.3, 2.7), (1.5, 4.7)], tall, speed=0.9),
+             PersonScript((Keyframe(0.0, -1.4, 4.4), Keyframe(8.0, -1.4, 4.4)),
+                          people.PersonLook(height_m=1.70, skin=33.5, top=29.5,
+                                            trousers=27.0, seed=7), heading_rad=math.pi),
+             _walker([(1.6, 2.5), (-1.5, 2.9)], short, speed=0.8, start=2.0),
+             _walker([(1.9, 5.0), (0.1, 3.3)], people.PersonLook(
+                 height_m=1.76, skin=33.0, top=28.0, trousers=27.5, seed=8), speed=0.7,
+                 start=0.5)),
+            duration_s=8.0, rig=realistic_rig(), room='meeting_room', right_phase_s=-0.020,
+            right_drift_ppm=-50.0),
     }
 
 

@@ -43,8 +43,11 @@ from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rect
 HIT_M = 0.5
 VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view
 SHORT_OCCLUSION_PAIRS = 17      # about 2 s at 8.7 pairs/s
-TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down', 'far_standing', 'far_walker')
-HELD_OUT_SEQUENCES = ('meeting_room', 'crossing', 'open_office')
+# meeting_room was held out until 2026-12-07, when it was traced (docs/people.md); from then
+# on it is a tuning sequence, and stand_up_meeting, made before that tracing, is held out.
+TUNING_SEQUENCES = ('walk_across', 'two_people', 'sit_down', 'far_standing', 'far_walker',
+                    'meeting_room')
+HELD_OUT_SEQUENCES = ('crossing', 'open_office', 'stand_up_meeting')
 # What a held-out sequence was seen for (it is held out for everything else).
 HELD_OUT_EXCEPT = {'open_office': 'held out but for the column-gap guard, the warm-object rule '
                                   "and the assignment's cost"}
