@@ -19,7 +19,7 @@ from st_stereo.core.people import (centred_on_silhouette, detect_people, Detecti
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
                                    silhouette_runs, silhouette_shift_xy, standing_on_legs,
                                    top_edge_height_m, vertical_segment_rows,
-                                   warm_column_gap_m, warm_column_reaches_top, warm_run_width_m,
+                                   walks_steadily, warm_column_gap_m, warm_column_reaches_top, warm_run_width_m,
                                    WarmBackground, world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
@@ -289,6 +289,71 @@ def test_a_cut_body_on_its_legs_is_published_at_once_and_a_screen_never():
     for index, t in enumerate(np.arange(0.345, 6.0, 0.115)):
         tracks = tracker.update([lent if index % 3 == 0 else screen], t)
         assert all(track.state[0] < 0 for track in tracks), t
+    assert tracker.counts['started'] == 1
+
+
+PAIR_S = 0.115
+
+
+@pytest.mark.parametrize('places, times, expected', [
+    # A walker advancing 0.1 m per detection, with a few centimetres of jitter across.
+    ([(1.0, 4.5), (0.98, 4.4), (1.01, 4.3), (0.99, 4.2), (1.0, 4.1)], None, True),
+    # Uneven steps, 0.08 to 0.13 m.
+    ([(1.0, 4.5), (1.0, 4.42), (1.0, 4.3), (1.0, 4.21), (1.0, 4.08)], None, True),
+    # A pause (a centimetre back) before walking fast: not steady (yet).
+    ([(1.0, 4.5), (1.0, 4.51), (1.0, 4.4), (1.0, 4.25), (1.0, 4.05)], None, False),
+    # A screen's two pieces 0.4 m apart: one jump is not a walk, nor is going back and forth.
+    ([(1.2, 4.6), (1.2, 4.6), (1.21, 4.6), (1.6, 4.6), (1.6, 4.6)], None, False),
+    ([(1.2, 4.6), (1.2, 4.6), (1.2, 4.6), (1.2, 4.6), (1.6, 4.6)], None, False),
+    ([(1.2, 4.6), (1.6, 4.6), (1.2, 4.6), (1.6, 4.6), (1.2, 4.6)], None, False),
+    # A screen in place, then its other piece after coasting unseen (the step at its pace),
+    # within 1 s and beyond it.
+    ([(1.62, 4.57)] * 2 + [(1.17, 4.62)] * 3, [0.0, 0.115, 0.69, 0.805, 0.92], False),
+    ([(1.62, 4.57)] * 4 + [(1.17, 4.62)], [0.0, 0.115, 0.23, 0.345, 1.4], False),
+    # Jitter in place; too short a walk; a step back; a detour.
+    ([(1.2, 4.6), (1.23, 4.58), (1.19, 4.62), (1.22, 4.6), (1.2, 4.59)], None, False),
+    ([(1.0, 4.5), (1.0, 4.45), (1.0, 4.4), (1.0, 4.35), (1.0, 4.3)], None, False),
+    ([(1.0, 4.5), (1.0, 4.35), (1.0, 4.45), (1.0, 4.2), (1.0, 4.0)], None, False),
+    ([(1.0, 4.5), (1.3, 4.4), (1.5, 4.3), (1.3, 4.2), (1.0, 4.05)], None, False),
+    # Fewer than five detections; five spread over more than 1 s.
+    ([(1.0, 4.5), (1.0, 4.3), (1.0, 4.1), (1.0, 3.9)], None, False),
+    ([(1.0, 4.5), (0.98, 4.4), (1.01, 4.3), (0.99, 4.2), (1.0, 4.1)], [0, 0.3, 0.6, 0.9, 1.2],
+     False),
+])
+def test_a_steady_walk_advances_at_every_step_without_a_jump(places, times, expected):
+    times = PAIR_S * np.arange(len(places)) if times is None else times
+    assert walks_steadily(places, times, 0.4) is expected
+    assert walks_steadily(places, times, 0.0) is False                # off
+
+
+def test_a_long_step_over_pairs_without_a_detection_is_still_a_step():
+    # A far walker undetected for two pairs: its step over them, 0.48 m, is most of the walk
+    # (0.63 m over 0.69 s), but within twice its pace over those three pairs.
+    places = [(-1.66, 4.4), (-1.18, 4.4), (-1.13, 4.4), (-1.08, 4.4), (-1.03, 4.4)]
+    times = [0.0, 0.345, 0.46, 0.575, 0.69]
+    assert walks_steadily(places, times, 0.4)
+    # The same positions one pair apart each: the first step is a jump.
+    assert not walks_steadily(places, 0.115 * np.arange(5), 0.4)
+
+
+@pytest.mark.parametrize('steady_walk_m, first', [(0.4, 4), (0.0, 10)])
+def test_a_cut_body_without_legs_walking_steadily_is_published_before_min_travel(
+        steady_walk_m, first):
+    # A far walker cut by the top edge whose legs are never seen, 0.1 m nearer per pair,
+    # beside a warm screen whose detections jump between its two pieces 0.4 m apart: the
+    # walker is published at its fifth detection (0.4 m walked), not after min_travel_m
+    # (1.0 m, the eleventh); the screen never.
+    tracker = PeopleTracker(PeopleConfig(steady_walk_m=steady_walk_m))
+    published = []
+    for index, t in enumerate(np.arange(0.0, 2.0, 0.115)):
+        walker = Detection(-1.0, 4.6 - 0.1 * index, 0.95, 20, 1.0, np.eye(2) * 1e-3,
+                           head_visible=False, cut_top=True)
+        piece = 1.2 if index % 6 < 3 else 1.6
+        screen = Detection(piece, 4.6, 0.95, 20, 1.0, np.eye(2) * 1e-3, head_visible=False,
+                           cut_top=True)
+        published.append([track.state[0] for track in tracker.update([walker, screen], t)])
+    assert all(x < 0 for xs in published for x in xs)
+    assert [bool(xs) for xs in published].index(True) == first
     assert tracker.counts['started'] == 1
 
 
@@ -936,8 +1001,10 @@ def test_a_still_track_is_held_only_while_its_person_and_a_neighbour_are_there(c
         tracker, published = _walker_stops_beside(still, leaves_s=2.5,
                                                   walker_stop=(0.0, 2.6))
     elif case == 'neighbour_unpublished':   # cut, no legs, under 1 m walked: never published
+        # (its steady walk would publish it: steady_walk_m off keeps the neighbour unpublished)
         tracker, published = _walker_stops_beside(still, walker_cut=True,
-                                                  walker_start=(0.2, 3.0), walks_from_s=1.5)
+                                                  walker_start=(0.2, 3.0), walks_from_s=1.5,
+                                                  config=PeopleConfig(steady_walk_m=0.0))
     else:                           # published on legs under a cut body, never seen whole
         tracker, published = _walker_stops_beside(still, still_cut=True)
     end = published[-1][0]
@@ -1412,7 +1479,9 @@ def test_a_far_person_cut_by_the_top_edge_is_found_in_rendered_frames_from_the_s
     assert found.hits >= 8 and found.estimates == found.hits
     without_legs = evaluate_sequence(spec, textures=textures, max_pairs=10,
                                      people_config=PeopleConfig(legs_min_fraction=0.0))
-    assert without_legs.estimates == 0            # must walk min_travel_m first
+    # It must walk first (min_travel_m, or steady_walk_m in 5 detections within 1 s: its
+    # detections, walking in at 0.5 m/s, are not that steady in these pairs).
+    assert without_legs.estimates == 0
 
 
 def test_eval_people_places_people_with_the_rig_pose_it_is_given():

@@ -131,6 +131,11 @@ class PeopleConfig:
     min_travel_m: float = _field(
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
+    steady_walk_m: float = _field(
+        0.4, 'or once its last 5 detections (within 1 s) walk steadily this far: every step '
+        "forward at half the walk's pace or more and none longer than twice it, the path at "
+        "most 1.5 times the line (a warm object's detections stay in place and jump between "
+        'its pieces); 0: off, m')
     legs_lapse_s: float = _field(
         5.0, 'a published track on thin evidence (not min_travel_m from its start in min_hits '
         'detections, legs or head seen in under 30 % of its detections) that has shown '
@@ -226,6 +231,11 @@ class PeopleConfig:
                                  f'{getattr(self, name)!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
+        if isinstance(self.steady_walk_m, bool) or \
+                not isinstance(self.steady_walk_m, (int, float)) or \
+                not (math.isfinite(self.steady_walk_m) and self.steady_walk_m >= 0):
+            raise ValueError(f'people.steady_walk_m: expected a number >= 0 (0: off), got '
+                             f'{self.steady_walk_m!r}')
 
     def to_dict(self):
         """Return the fields as a dict."""
@@ -1127,6 +1137,45 @@ SPOT_SPACING_M = 0.05
 SPOTS_KEPT = 32
 
 
+STEADY_WALK_DETECTIONS = 5     # detections a steady walk spans (``steady_walk_m``)
+STEADY_WALK_MAX_S = 1.0        # within this long (a few pairs without a detection at most)
+STEADY_WALK_PATH_RATIO = 1.5   # its path at most this times its line
+STEADY_WALK_JITTER_M = 0.02    # the detections' jitter allowed below a step's pace
+STEADY_WALK_JUMP_M = 0.1       # and above it
+
+
+def walks_steadily(places, times, distance_m, count=STEADY_WALK_DETECTIONS):
+    """
+    Whether the last ``count`` floor positions ``places`` walk steadily ``distance_m`` or more.
+
+    ``times``: the stamps of ``places`` (seconds, increasing), the ``count`` of them within
+    ``STEADY_WALK_MAX_S``. Steadily, at the walk's mean pace ``v`` (its line over its time):
+    each step goes forward along the line from the first position to the last by at least
+    half of ``v`` times the step's time (less ``STEADY_WALK_JITTER_M``), none is longer than
+    twice it (plus ``STEADY_WALK_JUMP_M``), and the path is at most ``STEADY_WALK_PATH_RATIO``
+    times the line. A warm object cut by the image's top edge (a screen) makes detections
+    that stay in place within a few centimetres and jump between its pieces, up to 0.5 m
+    apart; a person walking away or across advances at every step. False for ``distance_m``
+    0 (off) and with fewer than ``count`` positions.
+    """
+    if distance_m <= 0 or len(places) < count or len(times) < count:
+        return False
+    path = np.asarray(places[-count:], dtype=np.float64)
+    stamps = np.asarray(times[-count:], dtype=np.float64)
+    line = path[-1] - path[0]
+    length = float(np.hypot(*line))
+    duration = float(stamps[-1] - stamps[0])
+    if length < distance_m or not 0 < duration <= STEADY_WALK_MAX_S:
+        return False
+    steps = np.diff(path, axis=0)
+    forward = steps @ (line / length)
+    lengths = np.hypot(steps[:, 0], steps[:, 1])
+    pace = length / duration * np.diff(stamps)
+    return bool((forward >= 0.5 * pace - STEADY_WALK_JITTER_M).all() and
+                (lengths <= 2.0 * pace + STEADY_WALK_JUMP_M).all() and
+                lengths.sum() <= STEADY_WALK_PATH_RATIO * length)
+
+
 def new_spots(spots, x, y):
     """Return ``spots`` with ``(x, y)`` added when farther than SPOT_SPACING_M from each."""
     if all(math.hypot(x - sx, y - sy) > SPOT_SPACING_M for sx, sy in spots):
@@ -1193,6 +1242,7 @@ class Track:
     farthest_m: float = 0.0       # farthest any detection it took lay from ``start``
     far_hits: int = 0             # detections it took min_travel_m or more from ``start``
     places: tuple = ()            # floor positions of its last PLACES_KEPT detections
+    place_times: tuple = ()       # and their stamps
     spots: tuple = ()             # places it left by a jump (a warm object's other piece)
     whole_heights: tuple = ()     # head heights of its last head_height_pairs whole detections
     bounds: tuple = ()            # its last head_height_pairs detections' lower bounds (-inf)
@@ -1308,7 +1358,7 @@ class PeopleTracker:
             track.covariance = f @ track.covariance @ f.T + q * (g @ g.T)
             track.updated = False
 
-    def _correct(self, track, detection):
+    def _correct(self, track, detection, stamp_s):
         h = np.zeros((2, 4))
         h[0, 0] = h[1, 1] = 1.0
         r = detection.covariance + np.eye(2) * 1e-4
@@ -1335,6 +1385,7 @@ class PeopleTracker:
             for x, y in track.places:      # jumped to the object's other piece
                 track.spots = new_spots(track.spots, x, y)
         track.places = (track.places + ((detection.x, detection.y),))[-PLACES_KEPT:]
+        track.place_times = (track.place_times + (stamp_s,))[-PLACES_KEPT:]
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -1537,7 +1588,7 @@ class PeopleTracker:
                 distance = np.where(objects, np.inf, distance)
             # Leaving a track out costs the largest gate (the farthest any track may reach).
             for row, col in gated_assignment(distance, gate[:, 0], self.largest_gate()):
-                self._correct(group[row], detections[free[col]])
+                self._correct(group[row], detections[free[col]], stamp_s)
                 group[row].last_seen_s = stamp_s
                 if sum(group[row].legs_recent) >= self.config.min_hits or \
                         self._seen_whole(detections[free[col]]):
@@ -1565,6 +1616,7 @@ class PeopleTracker:
                                      detection=detection,
                                      legs_recent=(detection.legs_seen,),
                                      places=((detection.x, detection.y),),
+                                     place_times=(stamp_s,),
                                      whole_heights=whole_heights, bounds=bounds))
             self.tracks[-1].seen_as_person = self._is_person(self.tracks[-1], detection)
             self.tracks[-1].whole_hits = int(self._seen_whole(detection))
@@ -1603,7 +1655,9 @@ class PeopleTracker:
                         <= self.config.gate_m for other in self.tracks)
             if not track.confirmed and track.updated and \
                     (track.hits >= self.config.min_hits or on_legs) and \
-                    (track.seen_as_person or track.travel_m >= self.config.min_travel_m):
+                    (track.seen_as_person or track.travel_m >= self.config.min_travel_m or
+                     walks_steadily(track.places, track.place_times,
+                                    self.config.steady_walk_m)):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
                 track.confirmed = True
