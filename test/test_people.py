@@ -19,7 +19,8 @@ from st_stereo.core.people import (centred_on_silhouette, detect_people, Detecti
                                    PeopleTracker, rectified_to_world, silhouette_reaches_top,
                                    silhouette_runs, silhouette_shift_xy, standing_on_legs,
                                    top_edge_height_m, vertical_segment_rows,
-                                   walks_steadily, warm_column_gap_m, warm_column_reaches_top, warm_run_width_m,
+                                   walks_steadily, warm_column_gap_m, warm_column_reaches_top,
+                                   warm_run_width_m,
                                    WarmBackground, world_from_rectified)
 from st_stereo.core.rig_pose import load_rig_pose
 from st_stereo.nodes.conversions import point_cloud_fields
