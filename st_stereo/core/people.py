@@ -132,10 +132,12 @@ class PeopleConfig:
         1.0, 'a track never seen as a person by itself (only cut by the top edge, its legs not '
         'seen: like a warm screen) is published only after moving this far, m')
     steady_walk_m: float = _field(
-        0.4, 'or once its last 5 detections (within 1 s) walk steadily this far: every step '
-        "forward at half the walk's pace or more and none longer than twice it, the path at "
-        "most 1.5 times the line (a warm object's detections stay in place and jump between "
-        'its pieces); 0: off, m')
+        0.4, 'or once its last 5 detections, of consecutive pairs, walk steadily this far: '
+        "every step forward at half the walk's pace or more and none longer than twice it, "
+        "the path at most 1.5 times the line (a warm object's detections stay in place and "
+        'jump between its pieces); not a track with object_min_hits detections when the walk '
+        'began within object_radius_m of its start; renews a published track as legs do '
+        '(legs_lapse_s); 0: off, m')
     legs_lapse_s: float = _field(
         5.0, 'a published track on thin evidence (not min_travel_m from its start in min_hits '
         'detections, legs or head seen in under 30 % of its detections) that has shown '
@@ -1137,8 +1139,8 @@ SPOT_SPACING_M = 0.05
 SPOTS_KEPT = 32
 
 
-STEADY_WALK_DETECTIONS = 5     # detections a steady walk spans (``steady_walk_m``)
-STEADY_WALK_MAX_S = 1.0        # within this long (a few pairs without a detection at most)
+STEADY_WALK_DETECTIONS = 5     # detections of consecutive pairs a steady walk spans
+STEADY_WALK_GAP_RATIO = 1.5    # consecutive: no step over more than this times the shortest
 STEADY_WALK_PATH_RATIO = 1.5   # its path at most this times its line
 STEADY_WALK_JITTER_M = 0.02    # the detections' jitter allowed below a step's pace
 STEADY_WALK_JUMP_M = 0.1       # and above it
@@ -1148,15 +1150,18 @@ def walks_steadily(places, times, distance_m, count=STEADY_WALK_DETECTIONS):
     """
     Whether the last ``count`` floor positions ``places`` walk steadily ``distance_m`` or more.
 
-    ``times``: the stamps of ``places`` (seconds, increasing), the ``count`` of them within
-    ``STEADY_WALK_MAX_S``. Steadily, at the walk's mean pace ``v`` (its line over its time):
-    each step goes forward along the line from the first position to the last by at least
-    half of ``v`` times the step's time (less ``STEADY_WALK_JITTER_M``), none is longer than
-    twice it (plus ``STEADY_WALK_JUMP_M``), and the path is at most ``STEADY_WALK_PATH_RATIO``
-    times the line. A warm object cut by the image's top edge (a screen) makes detections
-    that stay in place within a few centimetres and jump between its pieces, up to 0.5 m
-    apart; a person walking away or across advances at every step. False for ``distance_m``
-    0 (off) and with fewer than ``count`` positions.
+    ``times``: the stamps of ``places`` (seconds, increasing). The ``count`` detections come
+    from consecutive pairs (no step's time over ``STEADY_WALK_GAP_RATIO`` times the shortest
+    one's: a track that coasted unseen may jump far at the walk's pace). Steadily, at the
+    walk's mean pace ``v`` (its line over its time): each step goes forward along the line
+    from the first position to the last by at least half of ``v`` times the step's time (less
+    ``STEADY_WALK_JITTER_M``), none is longer than twice it (plus ``STEADY_WALK_JUMP_M``), and
+    the path is at most ``STEADY_WALK_PATH_RATIO`` times the line. A warm object cut by the
+    image's top edge (a screen) makes detections that stay in place within a few
+    centimetres and jump between its pieces, up to 0.5 m apart; a person walking away or
+    across advances at every step. At 8.7 pairs/s, 5 detections span 0.46 s: 0.4 m takes a
+    walk of 0.87 m/s or more. False for ``distance_m`` 0 (off) and with fewer than ``count``
+    positions.
     """
     if distance_m <= 0 or len(places) < count or len(times) < count:
         return False
@@ -1164,13 +1169,14 @@ def walks_steadily(places, times, distance_m, count=STEADY_WALK_DETECTIONS):
     stamps = np.asarray(times[-count:], dtype=np.float64)
     line = path[-1] - path[0]
     length = float(np.hypot(*line))
-    duration = float(stamps[-1] - stamps[0])
-    if length < distance_m or not 0 < duration <= STEADY_WALK_MAX_S:
+    intervals = np.diff(stamps)
+    if length < distance_m or not intervals.min() > 0 or \
+            intervals.max() > STEADY_WALK_GAP_RATIO * intervals.min():
         return False
     steps = np.diff(path, axis=0)
     forward = steps @ (line / length)
     lengths = np.hypot(steps[:, 0], steps[:, 1])
-    pace = length / duration * np.diff(stamps)
+    pace = length / float(stamps[-1] - stamps[0]) * intervals
     return bool((forward >= 0.5 * pace - STEADY_WALK_JITTER_M).all() and
                 (lengths <= 2.0 * pace + STEADY_WALK_JUMP_M).all() and
                 lengths.sum() <= STEADY_WALK_PATH_RATIO * length)
@@ -1440,6 +1446,27 @@ class PeopleTracker:
         return [(t.state[0] + dt * t.state[2], t.state[1] + dt * t.state[3])
                 for t in self.tracks]
 
+    def _walks_steadily(self, track):
+        """
+        Whether a track's last detections walk steadily (``walks_steadily``, ``steady_walk_m``).
+
+        Not for a track that may have been a warm object when that walk began: one with
+        ``object_min_hits`` detections up to the walk's first, which lies within
+        ``object_radius_m`` of where the track started (``is_warm_object`` asks for the
+        farthest detection, which a jittering screen of two pieces may carry past it). A
+        warm screen's track, whose detections a passer-by sliding in front of it or its other
+        piece after a short hiding can move in steps, is that; a walker's track is young, or
+        has left its start.
+        """
+        if not walks_steadily(track.places, track.place_times, self.config.steady_walk_m):
+            return False
+        first = track.places[-STEADY_WALK_DETECTIONS]
+        at_walk_start = track.hits - (STEADY_WALK_DETECTIONS - 1)
+        return not (self.config.object_min_hits and
+                    at_walk_start >= self.config.object_min_hits and
+                    math.hypot(first[0] - track.start[0], first[1] - track.start[1]) <=
+                    self.config.object_radius_m)
+
     def is_warm_object(self, track):
         """
         Whether an unpublished track has shown a static warm object, not a person.
@@ -1591,8 +1618,10 @@ class PeopleTracker:
                 self._correct(group[row], detections[free[col]], stamp_s)
                 group[row].last_seen_s = stamp_s
                 if sum(group[row].legs_recent) >= self.config.min_hits or \
-                        self._seen_whole(detections[free[col]]):
-                    group[row].legs_seen_s = stamp_s     # seen as a person now
+                        self._seen_whole(detections[free[col]]) or \
+                        self._walks_steadily(group[row]):
+                    # Seen as a person now (a far person pacing without legs seen keeps it).
+                    group[row].legs_seen_s = stamp_s
                 assigned.add(free[col])
                 if group[row].confirmed:
                     beside.append(detections[free[col]])
@@ -1656,8 +1685,7 @@ class PeopleTracker:
             if not track.confirmed and track.updated and \
                     (track.hits >= self.config.min_hits or on_legs) and \
                     (track.seen_as_person or track.travel_m >= self.config.min_travel_m or
-                     walks_steadily(track.places, track.place_times,
-                                    self.config.steady_walk_m)):
+                     self._walks_steadily(track)):
                 # Cut off by the image's top edge and never moving: a warm object, not a person.
                 # Ids are given here, so noise that never becomes a track uses none.
                 track.confirmed = True
