@@ -180,11 +180,12 @@ class PeopleConfig:
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
     def __post_init__(self):
-        if isinstance(self.legs_lapse_s, bool) or \
-                not isinstance(self.legs_lapse_s, (int, float)) or \
-                not (math.isfinite(self.legs_lapse_s) and self.legs_lapse_s >= 0):
-            raise ValueError(f'people.legs_lapse_s: expected a number >= 0 (0: never), got '
-                             f'{self.legs_lapse_s!r}')
+        for name, zero in (('legs_lapse_s', 'never'), ('steady_walk_m', 'off')):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                    not (math.isfinite(value) and value >= 0):
+                raise ValueError(f'people.{name}: expected a number >= 0 (0: {zero}), got '
+                                 f'{value!r}')
         positive = ('person_radius_m', 'cell_m', 'background_time_s', 'absorb_time_s',
                     'disparity_sigma_px', 'gate_m', 'max_coast_s', 'acceleration_sigma',
                     'max_range_m', 'object_radius_m')
@@ -233,11 +234,6 @@ class PeopleConfig:
                                  f'{getattr(self, name)!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
-        if isinstance(self.steady_walk_m, bool) or \
-                not isinstance(self.steady_walk_m, (int, float)) or \
-                not (math.isfinite(self.steady_walk_m) and self.steady_walk_m >= 0):
-            raise ValueError(f'people.steady_walk_m: expected a number >= 0 (0: off), got '
-                             f'{self.steady_walk_m!r}')
 
     def to_dict(self):
         """Return the fields as a dict."""
