@@ -47,6 +47,8 @@ from scipy.optimize import linear_sum_assignment
 
 from st_stereo.core.config import parse_bool
 from st_stereo.core.rig_pose import rig_to_optical_rotation, rotation_z
+from st_stereo.core.silhouette_stereo import right_to_left_agrees, silhouette_disparity, \
+    top_silhouettes
 
 
 def _field(default, description):
@@ -108,6 +110,17 @@ class PeopleConfig:
         'silhouette (per image row, the warm run holding its points), not the median of its '
         'points, which lie mostly on one outline; tracking uses the points (needs the image '
         'and camera matrix)')
+    silhouette_margin_counts: float = _field(
+        40.0, 'a body rising out of the image top edge that no detection of points covers '
+        '(far off, starved of matches) is placed by its warm silhouette: the pixels warmer than '
+        'the background by this, connected to warm ones (warm_margin_counts), make its shape, '
+        'and the disparity of the whole shape (correlated with the right image) its depth; '
+        'such a detection is cut by the top edge without legs: a new track needs '
+        'min_travel_m or steady_walk_m to be published (needs right/image_rect and '
+        'right/camera_info); 0: off, raw counts')
+    silhouette_min_correlation: float = _field(
+        0.5, "a silhouette's disparity is used only when its correlation (ZNCC, -1..1) with "
+        'the right image is at least this')
     disparity_sigma_px: float = _field(
         0.15, 'disparity uncertainty of one point, for the position covariance, pixels')
     gate_m: float = _field(
@@ -180,7 +193,8 @@ class PeopleConfig:
         2.0, 'process noise of the constant-velocity filter, m/s^2')
 
     def __post_init__(self):
-        for name, zero in (('legs_lapse_s', 'never'), ('steady_walk_m', 'off')):
+        for name, zero in (('legs_lapse_s', 'never'), ('steady_walk_m', 'off'),
+                           ('silhouette_margin_counts', 'off')):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                     not (math.isfinite(value) and value >= 0):
@@ -232,6 +246,9 @@ class PeopleConfig:
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f'people.{name}: expected a number > 0, got '
                                  f'{getattr(self, name)!r}')
+        if not -1.0 <= self.silhouette_min_correlation <= 1.0:
+            raise ValueError(f'people.silhouette_min_correlation: expected -1..1, got '
+                             f'{self.silhouette_min_correlation!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
 
@@ -317,6 +334,7 @@ class Detection:
     legs_only: bool = False       # cut by the top edge so far off that only its legs show
     head_above: bool = False      # whole, but warm up to the top row above its points
     across: tuple = (0.0, 0.0)    # floor shift to its silhouette's middle (published only)
+    silhouette: bool = False      # placed by its warm silhouette's disparity, not its points
 
 
 class WarmBackground:
@@ -336,6 +354,7 @@ class WarmBackground:
         self.config = config or PeopleConfig()
         self.background = None
         self.valid = None            # the last image's pixels with data
+        self.difference = None       # the last image less the background and its offset
         self.stamp_s = None
         self.frames = 0
 
@@ -358,6 +377,7 @@ class WarmBackground:
         offset = float(np.median((image - self.background)[valid])) if valid.any() else 0.0
         difference = np.where(valid, image - self.background - offset, 0.0)
         warm = valid & (difference > self.config.warm_margin_counts)
+        self.difference = difference
         dt = max(0.0, stamp_s - self.stamp_s)
         self.frames += 1
         cool_rate = max(1.0 / self.frames, 1.0 - math.exp(-dt / self.config.background_time_s))
@@ -939,6 +959,134 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
                 standing.append((detection.x, detection.y))
                 detection = dataclasses.replace(detection, legs_seen=True)
         out.append(detection)
+    return out
+
+
+TOP_SILHOUETTE_MIN_ROWS = 3       # rows from the top edge down (a head's tip is not a body)
+TOP_SILHOUETTE_SPLIT = 0.5        # a column running under half the tallest: another thing
+TOP_SILHOUETTE_MAX_WIDTH_M = 0.7  # shoulders (0.5 m), a pixel of blur each side, arms
+SILHOUETTE_NEAREST_M = 1.0        # the disparity searched: from max_range_m to this depth
+
+
+def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, valid_right,
+               exclude):
+    """
+    Whether a silhouette's left and right halves lie at its depth, within ``tolerance_m``.
+
+    Each half (its columns up to, and from, the middle one), with its ring, gets its own
+    ``silhouette_disparity``; a half without one (too narrow, flat) is no evidence. A
+    silhouette holding two bodies at two depths (a far one's sliver beside a nearer one's
+    top, joined in the warm mask) is not one body.
+    """
+    fx_baseline, disparity_offset = stereo
+    middle = 0.5 * (cols.min() + cols.max())
+    for half in (np.arange(mask.shape[1]) > middle, np.arange(mask.shape[1]) < middle):
+        part = mask & ~half[None, :]
+        disparity, _ = silhouette_disparity(left, right, part, *bounds,
+                                            valid_right=valid_right, exclude=exclude)
+        if disparity > disparity_offset and \
+                abs(fx_baseline / (disparity - disparity_offset) - depth) > tolerance_m:
+            return False
+    return True
+
+
+def silhouette_detections(detections, weak, warm, left, right, transform, intrinsics, stereo,
+                          pixels, config=None, counts=None, valid_right=None):
+    """
+    Return detections of bodies rising out of the top edge that no detection covers.
+
+    ``top_silhouettes`` of ``weak`` (the pixels warmer than the background by
+    ``silhouette_margin_counts``) seeded by ``warm``; each one whose pixels (dilated by one)
+    hold a point of a detection of ``detections`` (members of ``pixels``, the left pixels of
+    the points given to ``detect_people``) is that detection's. The others get the
+    disparity of their whole shape (``silhouette_disparity`` between the rectified ``left``
+    and ``right`` images, searched between the depths ``max_range_m`` and
+    ``SILHOUETTE_NEAREST_M``; ``valid_right``: the right image's pixels with data), used when
+    its correlation is at least ``silhouette_min_correlation``; ``stereo`` is
+    ``(fx B, cx_left - cx_right)`` (the right camera_info's ``P``), so
+    ``Z = fx B / (d - (cx_left - cx_right))``. The silhouette's middle column and mean row
+    at that depth is a point of the body (``u, v`` onto the rectified left ray, into the
+    world by ``transform``); a shape wider than ``TOP_SILHOUETTE_MAX_WIDTH_M`` there, or
+    whose point lies below ``far_legs_min_height_m`` (``min_point_height_m`` when that is
+    off) or above ``max_point_height_m``, is not a body. Its floor position is pushed back by
+    ``cut_body_offset_m`` (the front of a cut body is seen) and must lie more than
+    ``2 person_radius_m`` from every detection. The detection is cut by the top edge
+    (``cut_top``, head not visible: its head height is the top edge's height there, a lower
+    bound, ``top_edge_height_m``), without legs, ``silhouette`` True; its points are those
+    on its pixels, its confidence the correlation, its covariance the depth's
+    (``sigma_Z = Z sigma_d / d``, ``disparity_sigma_px``) along the viewing direction and a
+    quarter of its width across it. ``counts`` (a dict) gains ``silhouettes``,
+    ``silhouette_covered``, ``silhouette_no_disparity``, ``silhouette_not_body`` and
+    ``silhouette_detections``.
+    """
+    config = config or PeopleConfig()
+    counts = {} if counts is None else counts
+    for key in ('silhouettes', 'silhouette_covered', 'silhouette_no_disparity',
+                'silhouette_not_back', 'silhouette_two_depths', 'silhouette_not_body',
+                'silhouette_detections'):
+        counts.setdefault(key, 0)
+    fx, fy, cx, cy = intrinsics
+    fx_baseline, disparity_offset = stereo
+    rotation, translation = transform
+    centre = camera_centre_in_world(transform)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    point_rows, point_cols, inside = pixel_indices(np.shape(warm), pixels[:, 0], pixels[:, 1])
+    low = disparity_offset + fx_baseline / config.max_range_m
+    high = disparity_offset + fx_baseline / SILHOUETTE_NEAREST_M
+    lowest = config.far_legs_min_height_m or config.min_point_height_m
+    out = []
+    for mask in top_silhouettes(weak, warm, TOP_SILHOUETTE_MIN_ROWS, TOP_SILHOUETTE_SPLIT):
+        counts['silhouettes'] += 1
+        region = ndimage.binary_dilation(mask, structure=np.ones((3, 3), dtype=bool))
+        held = inside & region[point_rows, point_cols]
+        if any(d.members is not None and held[np.asarray(d.members, dtype=int)].any()
+               for d in detections):
+            counts['silhouette_covered'] += 1
+            continue
+        disparity, correlation = silhouette_disparity(left, right, mask, low, high,
+                                                      valid_right=valid_right, exclude=weak)
+        if not correlation >= config.silhouette_min_correlation or \
+                not disparity > disparity_offset:
+            counts['silhouette_no_disparity'] += 1
+            continue
+        if not right_to_left_agrees(left, right, mask, disparity, low, high, exclude=weak):
+            counts['silhouette_not_back'] += 1
+            continue
+        depth = fx_baseline / (disparity - disparity_offset)
+        rows, cols = np.nonzero(mask)
+        if not _one_depth(left, right, mask, cols, (low, high), stereo, depth,
+                          2 * config.person_radius_m, valid_right, weak):
+            counts['silhouette_two_depths'] += 1
+            continue
+        u, v = 0.5 * (cols.min() + cols.max()), rows.mean()
+        body = rotation @ np.array([(u - cx) * depth / fx, (v - cy) * depth / fy, depth]) + \
+            translation
+        if (cols.max() - cols.min() + 1) * depth / fx > TOP_SILHOUETTE_MAX_WIDTH_M or \
+                not lowest <= body[2] <= config.max_point_height_m:
+            counts['silhouette_not_body'] += 1
+            continue
+        away = body[:2] - centre[:2]
+        away /= max(float(np.hypot(*away)), 1e-9)
+        xy = body[:2] + config.cut_body_offset_m * away
+        if any(math.hypot(d.x - xy[0], d.y - xy[1]) <= 2 * config.person_radius_m
+               for d in detections + out):
+            counts['silhouette_covered'] += 1
+            continue
+        ray = body - centre
+        sigma = depth * config.disparity_sigma_px / (disparity - disparity_offset) * \
+            math.hypot(ray[0], ray[1]) / float(np.linalg.norm(ray))
+        half_width = 0.5 * (cols.max() - cols.min() + 1) * depth / fx
+        across = np.array([-away[1], away[0]])
+        covariance = sigma ** 2 * np.outer(away, away) + \
+            (0.5 * half_width) ** 2 * np.outer(across, across)
+        head = top_edge_height_m(xy, transform, intrinsics)
+        members = np.flatnonzero(held)
+        out.append(Detection(float(xy[0]), float(xy[1]),
+                             float(body[2]) if not math.isfinite(head) else head,
+                             int(len(members)), float(correlation), covariance,
+                             head_visible=False, cut_top=True, depth_spread_m=float('nan'),
+                             members=members, silhouette=True))
+        counts['silhouette_detections'] += 1
     return out
 
 
@@ -1733,10 +1881,15 @@ class PeopleEstimator:
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
                        'silhouette_shared': 0, 'silhouette_not_checked': 0,
-                       'head_above_detections': 0}
+                       'head_above_detections': 0, 'silhouettes': 0, 'silhouette_covered': 0,
+                       'silhouette_no_disparity': 0, 'silhouette_not_back': 0,
+                       'silhouette_two_depths': 0,
+                       'silhouette_not_body': 0,
+                       'silhouette_detections': 0, 'silhouette_not_checked': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
-                left_image=None, image_shape=None, intrinsics=None):
+                left_image=None, image_shape=None, intrinsics=None, right_image=None,
+                stereo=None):
         """
         Return the PeopleFrame of one pair (see the class docstring).
 
@@ -1744,7 +1897,11 @@ class PeopleEstimator:
         with it and ``left_image``, a body cut by the image's top edge standing on warm legs
         (``standing_on_legs``) in ``min_hits`` of its track's last ``min_hits + 1`` pairs
         counts as a person (``cut_legs_seen``); without, such a body must move
-        ``min_travel_m`` first (``cut_legs_not_checked``).
+        ``min_travel_m`` first (``cut_legs_not_checked``). With the rectified ``right_image``
+        and ``stereo`` (``(fx B, cx_left - cx_right)`` of the right camera_info's ``P``) too,
+        bodies rising out of the top edge that no detection covers are found by their
+        silhouettes (``silhouette_detections``, ``silhouette_margin_counts``); without, the
+        pairs are counted (``silhouette_not_checked``).
         """
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -1798,10 +1955,30 @@ class PeopleEstimator:
             self.counts['silhouette_not_checked'] += len(detections)
         if warm is not None:
             detections = [self._head_above(d, warm, pixels) for d in detections]
+        if self.config.silhouette_margin_counts > 0:
+            if warm is not None and intrinsics is not None and right_image is not None and \
+                    stereo is not None:
+                detections = detections + self._silhouettes(
+                    detections, warm, left_image, right_image, intrinsics, stereo, pixels)
+            else:
+                self.counts['silhouette_not_checked'] += 1
         tracks = self.tracker.update(detections, stamp_s,
                                      None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
+
+    def _silhouettes(self, detections, warm, left_image, right_image, intrinsics, stereo,
+                     pixels):
+        """``silhouette_detections`` of this pair (the background's last difference)."""
+        background = self.background
+        weak = background.valid & (background.difference > self.config.silhouette_margin_counts)
+        right = np.asarray(right_image, dtype=np.float64)
+        if right.shape != warm.shape:
+            raise ValueError(f'people: right image shape {right.shape} differs from the left '
+                             f'image shape {warm.shape}')
+        return silhouette_detections(detections, weak, warm, left_image, right, self.transform,
+                                     intrinsics, stereo, pixels, self.config, self.counts,
+                                     valid_right=np.isfinite(right) & (right > 0))
 
     def _warm_support(self, points):
         """

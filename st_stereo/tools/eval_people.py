@@ -246,12 +246,15 @@ class PeopleScoring:
         """Match one pair, run the people stage and score it against the truth."""
         import time
         result = self.matching.match(left_raw, right_raw, t_left, t_right - t_left)
-        left = self.rectifier.rectify(left_raw, left_raw)[0]
+        left, right = self.rectifier.rectify(left_raw, right_raw)
         start = time.perf_counter()
         model = self.rectifier.model
         people = self.estimator.process(t_left, result.points, result.x_point, result.y_point,
                                         result.disparity, result.confidence, left,
-                                        intrinsics=(model.fx, model.fy, model.cx, model.cy))
+                                        intrinsics=(model.fx, model.fy, model.cx, model.cy),
+                                        right_image=right,
+                                        stereo=(model.fx * model.baseline,
+                                                model.disparity_offset))
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
         self.tally.add_labelled(labels, heads_world, heads_rectified, model, left.shape,
                                 people.tracks)
