@@ -1777,7 +1777,8 @@ def test_the_scoring_of_a_pair_passes_the_people_hidden_in_view_to_the_tally():
     # columns): the track kept on person 1 is excused, the one kept on person 2 is false.
     from st_stereo.sim.sequences import PERSON_LABEL_BASE
     from st_stereo.tools.eval_people import PeopleScoring, PeopleTally
-    model = types.SimpleNamespace(fx=80.0, fy=80.0, cx=39.5, cy=29.5)
+    model = types.SimpleNamespace(fx=80.0, fy=80.0, cx=39.5, cy=29.5, baseline=0.55,
+                                  disparity_offset=0.0)
     scoring = PeopleScoring.__new__(PeopleScoring)
     scoring.rectifier = types.SimpleNamespace(model=model,
                                               rectify=lambda a, b: (np.zeros((60, 80)), b))

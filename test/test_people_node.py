@@ -263,3 +263,70 @@ def test_a_far_body_cut_by_the_top_edge_is_a_person_on_its_legs_and_not_without(
     status = collector.statuses['people: people']
     assert status['people cut_legs_seen'] == seen
     assert int(status['people cut_legs_checked']) >= 4
+
+
+def far_pairs_rendered(count):
+    """Rectified (left, right) images of one person standing 4.6 m off in the meeting room."""
+    import math
+
+    from st_stereo.core.rectification import StereoRectifier
+    from st_stereo.sim import people as sim_people
+    from st_stereo.sim import sequences
+    spec = sequences.SequenceSpec(
+        'far_person_node_test', 'one person standing far off, the head above the image',
+        (sequences.PersonScript((sequences.Keyframe(0.0, 1.5, 4.6),
+                                 sequences.Keyframe(9.0, 1.5, 4.6)),
+                                sim_people.PersonLook(seed=11), heading_rad=math.pi),),
+        duration_s=count / 8.7, rig=RIG, room='meeting_room')
+    renderer = sequences.SequenceRenderer(spec)
+    rectifier = StereoRectifier(*RIG.calibrations())
+    for t_left, t_right in spec.pair_times():
+        frame = renderer.frame(t_left, right_t=t_right)
+        yield rectifier.rectify(frame['left'], frame['right'])
+
+
+def right_messages(sec, left, right):
+    """points2 without a point, the left and the right rectified images of one stamp."""
+    header = Header(frame_id='stereo_left_optical_frame')
+    header.stamp.sec = sec
+    empty = np.empty((0, 3))
+    cloud = point_cloud(header, empty, np.empty(0), np.empty(0), np.empty(0), np.empty(0))
+    return (cloud, image_to_msg(np.rint(left).astype(np.uint16), header),
+            image_to_msg(np.rint(right).astype(np.uint16), header))
+
+
+def test_with_the_right_image_a_far_body_without_matches_is_placed_by_its_silhouette(ros):
+    executor, collector, node = connected_people_node(ros)
+    node._on_right_info(camera_info_from_calibration(RIG.calibrations()[1], Header()))
+    for sec, (left, right) in enumerate(far_pairs_rendered(4), start=1):
+        cloud, left_msg, right_msg = right_messages(sec, left, right)
+        node._on_image(left_msg)
+        node._on_right_image(right_msg)
+        node._on_points(cloud)
+    assert node.counts['pairs_without_right_image'] == 0
+    assert node.estimator.counts['silhouette_detections'] >= 3
+    tracks = node.estimator.tracker.tracks
+    assert len(tracks) == 1 and tracks[0].cut_top
+    assert (tracks[0].state[0], tracks[0].state[1]) == pytest.approx((1.5, 4.6), abs=0.35)
+    # Standing far off without legs seen, it is not published (a warm screen looks the same).
+    spin_until(executor, lambda: len(collector.clouds) >= 4, 10.0)
+    assert [point_cloud_fields(c, ('x',))['x'].size for c in collector.clouds] == [0] * 4
+
+
+def test_pairs_without_the_right_image_are_counted_and_a_bad_one_named(ros):
+    executor, collector, node = connected_people_node(ros)
+    left, right = next(far_pairs_rendered(1))
+    cloud, left_msg, right_msg = right_messages(1, left, right)
+    feed(node, cloud, left_msg)                     # no right/camera_info, no right image
+    assert node.counts['pairs_without_right_image'] == 1
+    info = camera_info_from_calibration(RIG.calibrations()[1], Header())
+    info.p = [info.p[0], 0.0, info.p[2], 0.0] + list(info.p[4:])   # P[3] = 0: no baseline
+    node._on_right_info(info)
+    assert node.right_projection is None and node.counts['right_camera_info_rejected'] == 1
+    assert 'right/camera_info: P: expected' in node.last_error
+    node._on_right_info(camera_info_from_calibration(RIG.calibrations()[1], Header()))
+    cloud, left_msg, _ = right_messages(2, left, right)
+    node._on_right_image(image_to_msg(np.full((60, 79), 8000, np.uint16), cloud.header))
+    feed(node, cloud, left_msg)
+    assert node.counts['dropped_bad_input'] == 1
+    assert 'right/image_rect: 79x60, left/image_rect is 80x60' in node.last_error

@@ -108,7 +108,9 @@ PEOPLE_PARAMETERS = [
     NodeParameter('tilt_deg', 0.0, 'rig pose: optical axis from straight down, degrees'),
     NodeParameter('roll_deg', 0.0, 'rig pose: image rotation about the optical axis, degrees'),
     NodeParameter('use_image', True, 'pair points2 with left/image_rect (exact stamp) for the '
-                  'warm foreground; false: points2 alone (require_warm has no effect)'),
+                  'warm foreground, and with right/image_rect and right/camera_info for the '
+                  'silhouettes (silhouette_margin_counts); false: points2 alone (require_warm '
+                  'and the silhouettes have no effect)'),
     NodeParameter('target_frequency', 8.7, 'expected rate of the people topics, Hz (the '
                   'diagnostics say WARN more than 20 % away from it)', live=True),
 ]

@@ -7,7 +7,11 @@ image of the points' stamp, which the rectifier publishes before the matcher has
 a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
 skipped, the tracks coast and the messages still go out) and ``left/camera_info`` (its R turns
 the rectified frame into the raw optical one, its P gives each point's pixel; a camera_info
-with a P or R that cannot be used is dropped, counted and named in the diagnostics).
+with a P or R that cannot be used is dropped, counted and named in the diagnostics). With
+``use_image`` and ``silhouette_margin_counts`` > 0 also ``right/image_rect`` and
+``right/camera_info`` (its P: ``fx B`` and the right principal point): far bodies starved of
+matches are placed by their silhouettes' disparity; a pair without the right image of its
+stamp is counted (``pairs_without_right_image``) and gets no silhouettes.
 
 Publishes, each with the pair's stamp and ``world_frame``: ``people/poses``
 (geometry_msgs/PoseArray), ``people/detections`` (PointCloud2, one point per person:
@@ -73,9 +77,17 @@ class PeopleNode(Node):
         self.create_subscription(CameraInfo, 'left/camera_info', self._on_camera_info,
                                  qos_profile_sensor_data)
         self.use_image = self.get_parameter('use_image').value
+        self.use_right = self.use_image and self.config.silhouette_margin_counts > 0
         self.images = collections.OrderedDict()     # stamp key -> left/image_rect
+        self.right_images = collections.OrderedDict()   # stamp key -> right/image_rect
+        self.right_projection = None
         if self.use_image:
             self.create_subscription(Image, 'left/image_rect', self._on_image,
+                                     qos_profile_sensor_data)
+        if self.use_right:
+            self.create_subscription(Image, 'right/image_rect', self._on_right_image,
+                                     qos_profile_sensor_data)
+            self.create_subscription(CameraInfo, 'right/camera_info', self._on_right_info,
                                      qos_profile_sensor_data)
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
@@ -85,7 +97,8 @@ class PeopleNode(Node):
         self.counts = {'pairs': 0, 'published': 0, 'waiting_for_camera_info': 0,
                        'dropped_bad_input': 0, 'pairs_without_image': 0,
                        'images_without_points': 0, 'points_not_finite': 0,
-                       'camera_info_rejected': 0}
+                       'camera_info_rejected': 0, 'pairs_without_right_image': 0,
+                       'right_images_without_points': 0, 'right_camera_info_rejected': 0}
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -139,23 +152,49 @@ class PeopleNode(Node):
             raise ValueError(f'R: {error}') from None
         return world_from_rectified(self.pose, r1)
 
+    def _on_right_info(self, msg):
+        p = np.array(msg.p, dtype=np.float64).reshape(3, 4)
+        if not (np.isfinite(p).all() and p[0, 0] > 0 and p[0, 3] < 0):
+            self.counts['right_camera_info_rejected'] += 1
+            self.last_error = (f'right/camera_info: P: expected fx = P[0] > 0 and P[3] = '
+                               f'-fx B < 0 (left camera first), got {list(msg.p)}')
+            self.get_logger().warning(self.last_error, throttle_duration_sec=5.0)
+            return
+        self.right_projection = p
+
+    @staticmethod
+    def _keep(images, msg, counts, dropped):
+        images[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg
+        while len(images) > IMAGES_KEPT:
+            images.popitem(last=False)
+            counts[dropped] += 1
+
     def _on_image(self, msg):
-        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        self.images[key] = msg
-        while len(self.images) > IMAGES_KEPT:
-            self.images.popitem(last=False)
-            self.counts['images_without_points'] += 1
+        self._keep(self.images, msg, self.counts, 'images_without_points')
+
+    def _on_right_image(self, msg):
+        self._keep(self.right_images, msg, self.counts, 'right_images_without_points')
 
     def _on_points(self, points_msg):
         key = (points_msg.header.stamp.sec, points_msg.header.stamp.nanosec)
         image_msg = self.images.pop(key, None)
+        right_msg = self.right_images.pop(key, None)
         # Older images can no longer be paired: points come in stamp order.
-        for old in [k for k in self.images if k < key]:
-            del self.images[old]
-            self.counts['images_without_points'] += 1
-        self._on_pair(points_msg, image_msg)
+        for images, dropped in ((self.images, 'images_without_points'),
+                                (self.right_images, 'right_images_without_points')):
+            for old in [k for k in images if k < key]:
+                del images[old]
+                self.counts[dropped] += 1
+        self._on_pair(points_msg, image_msg, right_msg)
 
-    def _on_pair(self, points_msg, image_msg=None):
+    def _stereo(self):
+        """``(fx B, cx_left - cx_right)`` from the two camera_infos' P, or None."""
+        if self.right_projection is None or self.camera_info is None:
+            return None
+        left = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
+        return -self.right_projection[0, 3], left[0, 2] - self.right_projection[0, 2]
+
+    def _on_pair(self, points_msg, image_msg=None, right_msg=None):
         self.counts['pairs'] += 1
         if self.camera_info is None:
             self.counts['waiting_for_camera_info'] += 1
@@ -166,10 +205,15 @@ class PeopleNode(Node):
             fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
                                                     ('disparity', 'confidence'))
             image = None if image_msg is None else conversions.msg_to_image(image_msg)
+            right = None if right_msg is None or image is None else \
+                conversions.msg_to_image(right_msg)
             info = self.camera_info
             if image is not None and info.width and image.shape != (info.height, info.width):
                 raise ValueError(f'left/image_rect: {image.shape[1]}x{image.shape[0]}, '
                                  f'left/camera_info says {info.width}x{info.height}')
+            if right is not None and right.shape != image.shape:
+                raise ValueError(f'right/image_rect: {right.shape[1]}x{right.shape[0]}, '
+                                 f'left/image_rect is {image.shape[1]}x{image.shape[0]}')
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
@@ -186,6 +230,8 @@ class PeopleNode(Node):
             self.counts['pairs_without_image'] += 1
             points = points[:0]
             finite = np.zeros_like(finite)
+        if self.use_right and image is not None and (right is None or self._stereo() is None):
+            self.counts['pairs_without_right_image'] += 1
         p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         x_left, y = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
         shape = None if image is None else image.shape
@@ -196,7 +242,8 @@ class PeopleNode(Node):
             stamp_s, points, x_left, y,
             None if fields['disparity'] is None else fields['disparity'][finite],
             None if fields['confidence'] is None else fields['confidence'][finite],
-            image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]))
+            image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]), right_image=right,
+            stereo=self._stereo())
         header = Header(stamp=points_msg.header.stamp, frame_id=self.pose.world_frame)
         self.poses_pub.publish(people_messages.poses_msg(header, frame.tracks))
         self.detections_pub.publish(people_messages.detections_cloud(header, frame.tracks))

@@ -1,0 +1,181 @@
+"""
+Depth of whole warm silhouettes (st_stereo.core.silhouette_stereo) and its people detections.
+
+The unit checks use images made here with a known shift (and the two cameras' different
+offsets and gains); the detections are checked on the simulator's renderings of far people
+in the meeting room (its own camera model, not the code's), with no matched point at all.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rectified
+from st_stereo.core.rectification import StereoRectifier
+from st_stereo.core.silhouette_stereo import (right_to_left_agrees, silhouette_disparity,
+                                              top_runs, top_silhouettes)
+from st_stereo.sim import people as sim_people
+from st_stereo.sim import sequences
+
+SHAPE = (60, 80)
+
+
+def test_top_runs_count_rows_from_the_top_down_to_the_first_gap():
+    mask = np.zeros((6, 4), dtype=bool)
+    mask[:3, 0] = True
+    mask[:, 1] = True
+    mask[1:, 2] = True
+    mask[[0, 2], 3] = True
+    assert top_runs(mask).tolist() == [3, 6, 0, 1]
+
+
+def _region(rows, cols):
+    mask = np.zeros(SHAPE, dtype=bool)
+    mask[rows[0]:rows[1], cols[0]:cols[1]] = True
+    return mask
+
+
+def test_a_body_before_a_warm_panel_is_split_from_it_and_low_things_are_not_silhouettes():
+    body = _region((0, 30), (30, 36))
+    panel = _region((0, 6), (36, 50))             # joined to the body, 6 rows from the top
+    weak = body | panel | _region((20, 40), (5, 10)) | _region((0, 10), (70, 74))
+    strong = _region((5, 8), (31, 34)) | _region((25, 30), (6, 9))
+    masks = top_silhouettes(weak, strong, min_rows=3, split=0.5)
+    # The body; the panel (its own group); not the low thing (not at the top), nor the
+    # region at the top without a strong pixel.
+    assert len(masks) == 2
+    assert np.array_equal(masks[0], body)
+    assert np.array_equal(masks[1], panel)
+
+
+def _scene(body_disparity, offset_right=37.0, gain_right=1.03, seed=0):
+    """Left and right images of a warm body on a textured wall, the right one shifted."""
+    rng = np.random.default_rng(seed)
+    wall = 8000.0 + 30.0 * rng.standard_normal((SHAPE[0], SHAPE[1] + 40)).cumsum(axis=1) / 10
+    body = _region((0, 25), (40, 46))
+    left = wall[:, :SHAPE[1]].copy()
+    left[body] += 120.0
+    # The right camera sees the body ``body_disparity`` columns further left (sub-pixel by
+    # linear interpolation), the wall (far off) ``2`` columns further left.
+    columns = np.arange(SHAPE[1], dtype=np.float64)
+    right = np.empty(SHAPE)
+    for row in range(SHAPE[0]):
+        background = np.interp(columns + 2.0, np.arange(wall.shape[1]), wall[row])
+        warm = np.interp(columns + body_disparity, columns, body[row].astype(float))
+        right[row] = background + 120.0 * warm
+    return left, right * gain_right + offset_right, body
+
+
+@pytest.mark.parametrize('disparity', [5.0, 7.3, 11.6])
+def test_a_silhouette_gets_its_disparity_despite_the_cameras_offset_and_gain(disparity):
+    left, right, body = _scene(disparity)
+    found, correlation = silhouette_disparity(left, right, body, 1, 40)
+    assert found == pytest.approx(disparity, abs=0.2)
+    assert correlation > 0.8
+
+
+def test_no_disparity_on_the_search_bound_or_for_a_flat_region():
+    left, right, body = _scene(7.3)
+    assert math.isnan(silhouette_disparity(left, right, body, 1, 7)[0])    # best beyond
+    flat = np.full(SHAPE, 8000.0)
+    assert math.isnan(silhouette_disparity(flat, flat, body, 1, 40)[0])
+
+
+def test_another_warm_thing_beside_it_is_kept_out_of_the_ring():
+    left, right, body = _scene(7.3)
+    # A hot panel right beside the body at the wall's disparity (2 px).
+    panel = _region((0, 6), (46, 60))
+    left[panel] += 900.0
+    right[:, :-2][panel[:, 2:]] += 900.0 * 1.03
+    with_panel, _ = silhouette_disparity(left, right, body, 1, 40)
+    without, _ = silhouette_disparity(left, right, body, 1, 40, exclude=body | panel)
+    assert without == pytest.approx(7.3, abs=0.2)
+    assert abs(with_panel - 7.3) > abs(without - 7.3)
+
+
+def test_a_far_sliver_hidden_in_the_right_image_by_a_nearer_body_does_not_come_back():
+    rng = np.random.default_rng(3)
+    texture = rng.normal(0.0, 40.0, (40, 10))
+    near, far = _region((0, 40), (40, 50)), _region((0, 12), (36, 40))
+    left = 8000.0 + rng.normal(0.0, 3.0, SHAPE)
+    left[far] += 100.0
+    left[:40, 40:50] += 300.0 + texture
+    # The right image: the far body 4 px to the left (columns 32-35), the near one 12 px
+    # (columns 28-37), drawn over it: the far sliver is not in the right image at all.
+    right = 8000.0 + rng.normal(0.0, 3.0, SHAPE)
+    right[:12, 32:36] += 100.0
+    right[:40, 28:38] = 8300.0 + texture
+    exclude = near | far
+    disparity, _ = silhouette_disparity(left, right, far, 1, 30, exclude=exclude)
+    assert 1 < disparity < 30           # it finds one (the near body's edge), a wrong one
+    assert not right_to_left_agrees(left, right, far, disparity, 1, 30, exclude=exclude)
+    whole, _ = silhouette_disparity(left, right, near, 1, 30, exclude=exclude)
+    assert whole == pytest.approx(12.0, abs=0.3)
+    assert right_to_left_agrees(left, right, near, whole, 1, 30, exclude=exclude)
+
+
+def _far_people_renderings(pairs):
+    """Yield meeting-room pairs: one person standing 4.6 m off, one walking in from 4.9 m."""
+    look = sim_people.PersonLook(height_m=1.75, seed=11)
+    spec = sequences.SequenceSpec(
+        'far_people_test', 'two far people, heads above the image',
+        (sequences.PersonScript((sequences.Keyframe(0.0, 1.5, 4.6),
+                                 sequences.Keyframe(9.0, 1.5, 4.6)), look,
+                                heading_rad=math.pi),
+         sequences._walker([(-1.8, 4.9), (-0.2, 4.3)], sim_people.PersonLook(
+             height_m=1.70, seed=12), speed=0.8)),
+        duration_s=pairs / 8.7, rig=sequences.realistic_rig(), room='meeting_room',
+        right_phase_s=0.0)
+    renderer = sequences.SequenceRenderer(spec)
+    calibrations = spec.rig.calibrations()
+    rectifier = StereoRectifier(*calibrations)
+    transform = world_from_rectified(spec.rig.rig_pose(), calibrations[0].rectification)
+    for t_left, t_right in spec.pair_times():
+        frame = renderer.frame(t_left, right_t=t_right)
+        left, right = rectifier.rectify(frame['left'], frame['right'])
+        yield t_left, left, right, np.asarray(frame['heads_world']), rectifier.model, transform
+
+
+def test_far_people_without_a_single_match_are_placed_by_their_silhouettes():
+    estimator = None
+    found, errors = 0, []
+    for t, left, right, heads, model, transform in _far_people_renderings(12):
+        estimator = estimator or PeopleEstimator(transform, PeopleConfig())
+        frame = estimator.process(t, np.empty((0, 3)), np.empty(0), np.empty(0),
+                                  left_image=left,
+                                  intrinsics=(model.fx, model.fy, model.cx, model.cy),
+                                  right_image=right,
+                                  stereo=(model.fx * model.baseline, model.disparity_offset))
+        assert all(d.silhouette and d.cut_top and not d.head_visible
+                   for d in frame.detections)
+        for head in heads:
+            distance = [math.hypot(d.x - head[0], d.y - head[1]) for d in frame.detections]
+            if distance and min(distance) < 0.5:
+                found += 1
+                errors.append(min(distance))
+    assert estimator.counts['silhouette_detections'] >= found
+    assert found >= 18                       # of 24 person-pairs
+    assert np.median(errors) < 0.25
+
+
+def test_without_the_right_image_the_silhouettes_are_counted_not_checked():
+    t, left, _, _, model, transform = next(_far_people_renderings(1))
+    estimator = PeopleEstimator(transform)
+    frame = estimator.process(t, np.empty((0, 3)), np.empty(0), np.empty(0), left_image=left,
+                              intrinsics=(model.fx, model.fy, model.cx, model.cy))
+    assert frame.detections == []
+    assert estimator.counts['silhouette_not_checked'] == 1
+    off = PeopleEstimator(transform, PeopleConfig(silhouette_margin_counts=0.0))
+    off.process(t, np.empty((0, 3)), np.empty(0), np.empty(0), left_image=left,
+                intrinsics=(model.fx, model.fy, model.cx, model.cy))
+    assert off.counts['silhouette_not_checked'] == 0
+
+
+def test_a_right_image_of_another_size_is_named():
+    t, left, right, _, model, transform = next(_far_people_renderings(1))
+    estimator = PeopleEstimator(transform)
+    with pytest.raises(ValueError, match=r'right image shape \(60, 79\) differs'):
+        estimator.process(t, np.empty((0, 3)), np.empty(0), np.empty(0), left_image=left,
+                          intrinsics=(model.fx, model.fy, model.cx, model.cy),
+                          right_image=right[:, :79],
+                          stereo=(model.fx * model.baseline, model.disparity_offset))
