@@ -27,6 +27,7 @@ from scipy import ndimage
 
 EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 MIN_INSIDE_FRACTION = 0.8   # of the silhouette's pixels (with ring) inside the right image
+REFINE_STEP_PX = 0.1        # the fractional shifts tried around the best integer one
 
 
 def top_runs(mask):
@@ -121,28 +122,54 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     if not len(rows) or high < low:
         return float('nan'), float('nan')
     values = left[rows, cols]
-    costs = np.full(high - low + 1, np.inf)
-    for index, shift in enumerate(range(low, high + 1)):
-        shifted = cols - shift
-        inside = shifted >= 0
-        if valid_right is not None:
-            inside[inside] &= valid_right[rows[inside], shifted[inside]]
-        if inside.sum() < MIN_INSIDE_FRACTION * len(rows):
-            continue
-        a = values[inside] - values[inside].mean()
-        b = right[rows[inside], shifted[inside]]
-        b = b - b.mean()
-        norm = np.sqrt(float(a @ a) * float(b @ b))
-        if norm > 0:
-            costs[index] = 1.0 - float(a @ b) / norm
+    costs = np.array([_zncc_cost(values, rows, cols, right, shift, valid_right)
+                      for shift in range(low, high + 1)])
     best = int(np.argmin(costs))
     if not np.isfinite(costs[best]) or best == 0 or best == len(costs) - 1 or \
             not np.isfinite(costs[best - 1]) or not np.isfinite(costs[best + 1]):
         return float('nan'), float('nan')
-    before, at, after = costs[best - 1], costs[best], costs[best + 1]
-    curvature = before - 2.0 * at + after
-    offset = 0.5 * (before - after) / curvature if curvature > 0 else 0.0
-    return low + best + float(np.clip(offset, -0.5, 0.5)), 1.0 - float(at)
+    # Pixel-locking: a parabola through integer shifts pulls towards them; the shifts within
+    # half a pixel of the best, REFINE_STEP_PX apart (the right image interpolated linearly),
+    # and the parabola through the finest best's neighbours.
+    steps = low + best + np.arange(-0.5, 0.5 + 1e-9, REFINE_STEP_PX)
+    fine = np.array([_zncc_cost(values, rows, cols, right, shift, valid_right)
+                     for shift in steps])
+    at = int(np.argmin(fine))
+    if not np.isfinite(fine[at]):
+        return float('nan'), float('nan')
+    offset = 0.0
+    if 0 < at < len(fine) - 1 and np.isfinite(fine[at - 1]) and np.isfinite(fine[at + 1]):
+        curvature = fine[at - 1] - 2.0 * fine[at] + fine[at + 1]
+        if curvature > 0:
+            offset = 0.5 * (fine[at - 1] - fine[at + 1]) / curvature * REFINE_STEP_PX
+    return float(steps[at]) + float(np.clip(offset, -REFINE_STEP_PX, REFINE_STEP_PX)), \
+        1.0 - float(fine[at])
+
+
+def _zncc_cost(values, rows, cols, right, shift, valid_right):
+    """
+    ``1 - ZNCC`` of the left ``values`` at ``(rows, cols)`` with ``right`` ``shift`` columns left.
+
+    A fractional shift interpolates the right image linearly along the row. Infinite when
+    fewer than ``MIN_INSIDE_FRACTION`` of the pixels land inside the right image (on its
+    ``valid_right`` pixels) or either side is flat.
+    """
+    position = cols - shift
+    first = np.floor(position).astype(int)
+    weight = position - first
+    second = np.where(weight > 0, first + 1, first)
+    inside = (first >= 0) & (second < right.shape[1])
+    if valid_right is not None:
+        inside[inside] &= valid_right[rows[inside], first[inside]] & \
+            valid_right[rows[inside], second[inside]]
+    if inside.sum() < MIN_INSIDE_FRACTION * len(rows):
+        return np.inf
+    r, w = rows[inside], weight[inside]
+    a = values[inside] - values[inside].mean()
+    b = (1.0 - w) * right[r, first[inside]] + w * right[r, second[inside]]
+    b = b - b.mean()
+    norm = np.sqrt(float(a @ a) * float(b @ b))
+    return 1.0 - float(a @ b) / norm if norm > 0 else np.inf
 
 
 def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1.0,
