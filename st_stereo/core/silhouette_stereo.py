@@ -122,8 +122,7 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     if not len(rows) or high < low:
         return float('nan'), float('nan')
     values = left[rows, cols]
-    costs = np.array([_zncc_cost(values, rows, cols, right, shift, valid_right)
-                      for shift in range(low, high + 1)])
+    costs = _zncc_costs(values, rows, cols, right, np.arange(low, high + 1), valid_right)
     best = int(np.argmin(costs))
     if not np.isfinite(costs[best]) or best == 0 or best == len(costs) - 1 or \
             not np.isfinite(costs[best - 1]) or not np.isfinite(costs[best + 1]):
@@ -132,8 +131,7 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     # half a pixel of the best, REFINE_STEP_PX apart (the right image interpolated linearly),
     # and the parabola through the finest best's neighbours.
     steps = low + best + np.arange(-0.5, 0.5 + 1e-9, REFINE_STEP_PX)
-    fine = np.array([_zncc_cost(values, rows, cols, right, shift, valid_right)
-                     for shift in steps])
+    fine = _zncc_costs(values, rows, cols, right, steps, valid_right)
     at = int(np.argmin(fine))
     if not np.isfinite(fine[at]):
         return float('nan'), float('nan')
@@ -146,30 +144,36 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
         1.0 - float(fine[at])
 
 
-def _zncc_cost(values, rows, cols, right, shift, valid_right):
+def _zncc_costs(values, rows, cols, right, shifts, valid_right):
     """
-    ``1 - ZNCC`` of the left ``values`` at ``(rows, cols)`` with ``right`` ``shift`` columns left.
+    Return ``1 - ZNCC`` of the left pixels with the right image, one per shift.
 
-    A fractional shift interpolates the right image linearly along the row. Infinite when
-    fewer than ``MIN_INSIDE_FRACTION`` of the pixels land inside the right image (on its
-    ``valid_right`` pixels) or either side is flat.
+    ``values`` at ``(rows, cols)`` against ``right`` each of ``shifts`` columns to the left,
+    all at once (pixels x shifts). A fractional shift interpolates the right image linearly
+    along the row. Infinite where fewer than ``MIN_INSIDE_FRACTION`` of the pixels land
+    inside the right image (on its ``valid_right`` pixels) or either side is flat.
     """
-    position = cols - shift
+    shifts = np.asarray(shifts, dtype=np.float64)
+    position = cols[:, None] - shifts[None, :]
     first = np.floor(position).astype(int)
     weight = position - first
     second = np.where(weight > 0, first + 1, first)
     inside = (first >= 0) & (second < right.shape[1])
+    first_at, second_at = np.where(inside, first, 0), np.where(inside, second, 0)
+    row_at = np.broadcast_to(rows[:, None], first.shape)
     if valid_right is not None:
-        inside[inside] &= valid_right[rows[inside], first[inside]] & \
-            valid_right[rows[inside], second[inside]]
-    if inside.sum() < MIN_INSIDE_FRACTION * len(rows):
-        return np.inf
-    r, w = rows[inside], weight[inside]
-    a = values[inside] - values[inside].mean()
-    b = (1.0 - w) * right[r, first[inside]] + w * right[r, second[inside]]
-    b = b - b.mean()
-    norm = np.sqrt(float(a @ a) * float(b @ b))
-    return 1.0 - float(a @ b) / norm if norm > 0 else np.inf
+        inside &= valid_right[row_at, first_at] & valid_right[row_at, second_at]
+    b = (1.0 - weight) * right[row_at, first_at] + weight * right[row_at, second_at]
+    a = np.broadcast_to(values[:, None], b.shape)
+    count = inside.sum(axis=0)
+    usable = count >= MIN_INSIDE_FRACTION * len(rows)
+    count = np.maximum(count, 1)
+    a = np.where(inside, a - (a * inside).sum(axis=0) / count, 0.0)
+    b = np.where(inside, b - (b * inside).sum(axis=0) / count, 0.0)
+    norm = np.sqrt((a * a).sum(axis=0) * (b * b).sum(axis=0))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        costs = 1.0 - (a * b).sum(axis=0) / norm
+    return np.where(usable & (norm > 0), costs, np.inf)
 
 
 def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1.0,
