@@ -1802,3 +1802,57 @@ def test_the_scoring_of_a_pair_passes_the_people_hidden_in_view_to_the_tally():
         scoring.pair(None, None, 0.0, 0.03, labels, world, rectified)
     row = scoring.tally.row()
     assert (row['on_hidden'], scoring.tally.hits, row['estimates']) == (1, 4, 5)
+
+
+@pytest.mark.parametrize('missed_pairs', [0, 1, 2])
+def test_a_person_missed_beside_a_warm_screen_s_silhouette_does_not_stay_on_it(missed_pairs):
+    # A published person walks away from a warm screen at (1.2, 4.6) whose silhouette (no
+    # points of its own) shows again as they leave. Seen every pair, the track follows the
+    # person; missed for a pair or two, the track may take the screen, but not for longer
+    # than the lapse (legs_lapse_s, 5 s): the screen's track is withdrawn, the person
+    # published under a new id.
+    tracker = PeopleTracker(PeopleConfig())
+    screen = Detection(1.2, 4.6, 1.1, 0, 0.9, np.eye(2) * 1e-3, head_visible=False,
+                       cut_top=True, silhouette=True)
+    on_screen = []
+    for index, t in enumerate(np.arange(0.0, 10.0, 0.115)):
+        x = 0.8 + 0.1 * max(0, index - 20)          # stands beside it, then walks away
+        person = Detection(min(x, 2.5), 4.0, 1.7, 60, 1.0, np.eye(2) * 1e-3)
+        seen = [] if 21 <= index < 21 + missed_pairs else [person]
+        tracks = tracker.update(seen + ([screen] if index >= 21 else []), t)
+        on_screen.append(any(math.hypot(track.state[0] - 1.2, track.state[1] - 4.6) < 0.3
+                             for track in tracks))
+    assert any(track.state[0] > 2.3 for track in tracks)     # the person, published
+    assert not any(on_screen[-20:])
+    assert sum(on_screen) * 0.115 <= tracker.config.legs_lapse_s + 1.0
+    if not missed_pairs:
+        assert not any(on_screen)
+        assert tracker.counts['shape_lapsed'] == 0
+
+
+def test_a_silhouette_does_not_pick_up_a_track_missed_in_the_previous_pair():
+    tracker = PeopleTracker(PeopleConfig())
+    for index, t in enumerate(np.arange(0.0, 0.5, 0.115)):
+        tracker.update([Detection(0.0, 4.0 + 0.05 * index, 1.7, 60, 1.0, np.eye(2) * 1e-3)], t)
+    assert [track.track_id for track in tracker.tracks] == [1]
+    tracker.update([], 0.575)                                 # missed
+    shape = Detection(0.0, 4.3, 1.1, 0, 0.9, np.eye(2) * 1e-3, head_visible=False,
+                      cut_top=True, silhouette=True)
+    tracker.update([shape], 0.69)
+    first = [track for track in tracker.tracks if track.track_id == 1]
+    assert first and first[0].last_seen_s < 0.69             # it coasts; a new track starts
+    assert len(tracker.tracks) == 2
+
+
+def test_the_pixels_of_a_published_silhouette_are_kept_from_the_background():
+    shape = np.flatnonzero(np.pad(np.ones((5, 3), bool), ((0, 55), (40, 37))))
+    detection = Detection(0.0, 4.6, 1.1, 0, 0.9, np.eye(2) * 1e-3, head_visible=False,
+                          cut_top=True, members=np.array([], dtype=int), silhouette=True,
+                          shape_pixels=shape)
+    track = types.SimpleNamespace(updated=True, detection=detection)
+    protect = PeopleEstimator._people_pixels([track], np.array([], dtype=int), np.empty(0),
+                                             np.empty(0), (60, 80))
+    assert protect.reshape(-1)[shape].all()
+    track.updated = False
+    assert not PeopleEstimator._people_pixels([track], np.array([], dtype=int), np.empty(0),
+                                              np.empty(0), (60, 80)).any()

@@ -323,10 +323,23 @@ def test_pairs_without_the_right_image_are_counted_and_a_bad_one_named(ros):
     info.p = [info.p[0], 0.0, info.p[2], 0.0] + list(info.p[4:])   # P[3] = 0: no baseline
     node._on_right_info(info)
     assert node.right_projection is None and node.counts['right_camera_info_rejected'] == 1
-    assert 'right/camera_info: P: expected' in node.last_error
+    assert 'right/camera_info: P: expected' in node.right_error
     node._on_right_info(camera_info_from_calibration(RIG.calibrations()[1], Header()))
-    cloud, left_msg, _ = right_messages(2, left, right)
-    node._on_right_image(image_to_msg(np.full((60, 79), 8000, np.uint16), cloud.header))
-    feed(node, cloud, left_msg)
-    assert node.counts['dropped_bad_input'] == 1
-    assert 'right/image_rect: 79x60, left/image_rect is 80x60' in node.last_error
+    # A right image of another size: the pair goes on without silhouettes, a near person's
+    # points still make it.
+    header = Header(frame_id='stereo_left_optical_frame')
+    for sec in range(2, 5):
+        cloud, image = pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec))
+        header.stamp.sec = sec
+        node._on_right_image(image_to_msg(np.full((60, 79), 8000, np.uint16), header))
+        feed(node, cloud, image)
+    assert node.counts['dropped_bad_input'] == 0
+    assert node.counts['right_image_rejected'] == 3
+    assert 'right/image_rect: 79x60, left/image_rect is 80x60' in node.right_error
+    spin_until(executor, lambda: len(collector.clouds) >= 4, 10.0)
+    assert point_cloud_fields(collector.clouds[-1], ('x',))['x'].size == 1
+    messages = []
+    collector.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: messages.extend(
+        status.message for status in msg.status if status.name == 'people: people'), 10)
+    spin_until(executor, lambda: messages, 5.0)
+    assert messages[-1].startswith('no silhouettes: right/image_rect: 79x60')

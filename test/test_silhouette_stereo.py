@@ -164,11 +164,11 @@ def test_without_the_right_image_the_silhouettes_are_counted_not_checked():
     frame = estimator.process(t, np.empty((0, 3)), np.empty(0), np.empty(0), left_image=left,
                               intrinsics=(model.fx, model.fy, model.cx, model.cy))
     assert frame.detections == []
-    assert estimator.counts['silhouette_not_checked'] == 1
+    assert estimator.counts['silhouette_pairs_not_checked'] == 1
     off = PeopleEstimator(transform, PeopleConfig(silhouette_margin_counts=0.0))
     off.process(t, np.empty((0, 3)), np.empty(0), np.empty(0), left_image=left,
                 intrinsics=(model.fx, model.fy, model.cx, model.cy))
-    assert off.counts['silhouette_not_checked'] == 0
+    assert off.counts['silhouette_pairs_not_checked'] == 0
 
 
 def test_a_right_image_of_another_size_is_named():
@@ -179,3 +179,31 @@ def test_a_right_image_of_another_size_is_named():
                           intrinsics=(model.fx, model.fy, model.cx, model.cy),
                           right_image=right[:, :79],
                           stereo=(model.fx * model.baseline, model.disparity_offset))
+
+
+def test_slivers_split_off_a_wide_warm_thing_are_not_silhouettes():
+    # A radiator reaching the top row, cut by a body in front of it into a 2-column piece on
+    # the left and a wide piece on the right: the 2-column one is left out.
+    body = _region((0, 30), (30, 36))
+    left_piece, right_piece = _region((0, 6), (28, 30)), _region((0, 6), (36, 44))
+    weak = body | left_piece | right_piece
+    masks = top_silhouettes(weak, body, min_rows=3, split=0.5)
+    assert [int(m.sum()) for m in masks] == [180, 48]
+    assert len(top_silhouettes(weak, body, min_rows=3, split=0.5, min_columns=2)) == 3
+
+
+def test_a_negative_disparity_is_found_too():
+    # cx_left - cx_right < 0: a far body's disparity may be negative.
+    left, right, body = _scene(-3.4)
+    found, _ = silhouette_disparity(left, right, body, -10, 10)
+    assert found == pytest.approx(-3.4, abs=0.2)
+
+
+def test_pixels_without_data_in_the_ring_are_left_out():
+    left, right, body = _scene(7.3)
+    left[:4, 46:] = 0.0                      # the rectification's invalid corner by the body
+    invalid = left == 0.0
+    assert math.isnan(silhouette_disparity(left, right, body, 1, 40)[0]) or \
+        abs(silhouette_disparity(left, right, body, 1, 40)[0] - 7.3) > 0.2
+    found, _ = silhouette_disparity(left, right, body, 1, 40, exclude=invalid)
+    assert found == pytest.approx(7.3, abs=0.2)

@@ -116,8 +116,9 @@ class PeopleConfig:
         'the background by this, connected to warm ones (warm_margin_counts), make its shape, '
         'and the disparity of the whole shape (correlated with the right image) its depth; '
         'such a detection is cut by the top edge without legs: a new track needs '
-        'min_travel_m or steady_walk_m to be published (needs right/image_rect and '
-        'right/camera_info); 0: off, raw counts')
+        'min_travel_m or steady_walk_m to be published, and it continues only a track seen in '
+        'the previous pair; the pixels of a published one are not learned into the background '
+        '(needs right/image_rect and right/camera_info); 0: off, raw counts')
     silhouette_min_correlation: float = _field(
         0.5, "a silhouette's disparity is used only when its correlation (ZNCC, -1..1) with "
         'the right image is at least this')
@@ -156,7 +157,9 @@ class PeopleConfig:
         'detections, legs or head seen in under 30 % of its detections) that has shown '
         'neither legs in min_hits of min_hits + 1 detections nor its head (whole) for this '
         'long since its publication is withdrawn (its id ends; the track goes on '
-        'unpublished): a warm screen lent legs by passers-by is not a person for good; 0: '
+        'unpublished): a warm screen lent legs by passers-by is not a person for good; so is '
+        'one standing still on silhouettes alone (silhouette_margin_counts, no detection of '
+        'points) for this long (a person missed as a warm screen showed beside them); 0: '
         'never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
@@ -335,6 +338,7 @@ class Detection:
     head_above: bool = False      # whole, but warm up to the top row above its points
     across: tuple = (0.0, 0.0)    # floor shift to its silhouette's middle (published only)
     silhouette: bool = False      # placed by its warm silhouette's disparity, not its points
+    shape_pixels: np.ndarray = None   # that silhouette's pixels (flat indices of the image)
 
 
 class WarmBackground:
@@ -991,7 +995,7 @@ def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, vali
 
 
 def silhouette_detections(detections, weak, warm, left, right, transform, intrinsics, stereo,
-                          pixels, config=None, counts=None, valid_right=None):
+                          pixels, config=None, counts=None, valid_right=None, valid_left=None):
     """
     Return detections of bodies rising out of the top edge that no detection covers.
 
@@ -1001,7 +1005,8 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     the points given to ``detect_people``) is that detection's. The others get the
     disparity of their whole shape (``silhouette_disparity`` between the rectified ``left``
     and ``right`` images, searched between the depths ``max_range_m`` and
-    ``SILHOUETTE_NEAREST_M``; ``valid_right``: the right image's pixels with data), used when
+    ``SILHOUETTE_NEAREST_M``; ``valid_right``, ``valid_left``: the images' pixels with data,
+    the left one's others out of the ring as ``weak``'s are), used when
     its correlation is at least ``silhouette_min_correlation``; ``stereo`` is
     ``(fx B, cx_left - cx_right)`` (the right camera_info's ``P``), so
     ``Z = fx B / (d - (cx_left - cx_right))``. The silhouette's middle column and mean row
@@ -1034,6 +1039,7 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     low = disparity_offset + fx_baseline / config.max_range_m
     high = disparity_offset + fx_baseline / SILHOUETTE_NEAREST_M
     lowest = config.far_legs_min_height_m or config.min_point_height_m
+    exclude = weak if valid_left is None else weak | ~valid_left
     out = []
     for mask in top_silhouettes(weak, warm, TOP_SILHOUETTE_MIN_ROWS, TOP_SILHOUETTE_SPLIT):
         counts['silhouettes'] += 1
@@ -1044,18 +1050,19 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
             counts['silhouette_covered'] += 1
             continue
         disparity, correlation = silhouette_disparity(left, right, mask, low, high,
-                                                      valid_right=valid_right, exclude=weak)
+                                                      valid_right=valid_right, exclude=exclude)
         if not correlation >= config.silhouette_min_correlation or \
                 not disparity > disparity_offset:
             counts['silhouette_no_disparity'] += 1
             continue
-        if not right_to_left_agrees(left, right, mask, disparity, low, high, exclude=weak):
+        if not right_to_left_agrees(left, right, mask, disparity, low, high,
+                                    valid_left=valid_left, exclude=exclude):
             counts['silhouette_not_back'] += 1
             continue
         depth = fx_baseline / (disparity - disparity_offset)
         rows, cols = np.nonzero(mask)
         if not _one_depth(left, right, mask, cols, (low, high), stereo, depth,
-                          2 * config.person_radius_m, valid_right, weak):
+                          2 * config.person_radius_m, valid_right, exclude):
             counts['silhouette_two_depths'] += 1
             continue
         u, v = 0.5 * (cols.min() + cols.max()), rows.mean()
@@ -1085,7 +1092,8 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
                              float(body[2]) if not math.isfinite(head) else head,
                              int(len(members)), float(correlation), covariance,
                              head_visible=False, cut_top=True, depth_spread_m=float('nan'),
-                             members=members, silhouette=True))
+                             members=members, silhouette=True,
+                             shape_pixels=np.flatnonzero(mask)))
         counts['silhouette_detections'] += 1
     return out
 
@@ -1398,6 +1406,7 @@ class Track:
     bounds: tuple = ()            # its last head_height_pairs detections' lower bounds (-inf)
     corrected: tuple = None       # (state, covariance) after its last detection
     held_s: float = -math.inf     # last stamp it was held beside a neighbour (_hold_beside)
+    points_seen_s: float = -math.inf  # last stamp of a detection of points (not a silhouette)
 
     def __post_init__(self):
         if self.start is None:
@@ -1496,7 +1505,8 @@ class PeopleTracker:
         self.object_memory = []      # (last seen s, spots) of warm objects' ended tracks
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
                        'unassigned_detections': 0, 'time_backwards': 0,
-                       'object_detections': 0, 'legs_lapsed': 0, 'held_beside': 0}
+                       'object_detections': 0, 'legs_lapsed': 0, 'shape_lapsed': 0,
+                       'held_beside': 0}
 
     def _predict(self, dt):
         f = np.eye(4)
@@ -1536,6 +1546,8 @@ class PeopleTracker:
                 track.spots = new_spots(track.spots, x, y)
         track.places = (track.places + ((detection.x, detection.y),))[-PLACES_KEPT:]
         track.place_times = (track.place_times + (stamp_s,))[-PLACES_KEPT:]
+        if not detection.silhouette:
+            track.points_seen_s = stamp_s
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -1581,6 +1593,27 @@ class PeopleTracker:
             track.far_hits < self.config.min_hits and \
             track.legs_hits + track.whole_hits < LENT_LEGS_FRACTION * track.hits and \
             stamp_s - track.legs_seen_s > self.config.legs_lapse_s
+
+    def _shape_lapsed(self, track, stamp_s):
+        """
+        Whether a published track has stood on silhouettes alone for longer than the lapse.
+
+        Detected now; no detection of points for more than ``legs_lapse_s`` (its start
+        counts as one); its last ``PLACES_KEPT`` detections within ``object_radius_m`` of
+        their middle (standing still). A published person missed in the pair a warm screen's
+        silhouette shows beside them (a screen with no texture: no points of its own) takes
+        it and stays there; withdrawn, it must walk ``min_travel_m`` anew (from where it is)
+        or show its legs or head to be published again. A far person standing still without a
+        point for that long is withdrawn too (published again when it walks off).
+        """
+        if not (self.config.legs_lapse_s > 0 and track.confirmed and track.updated and
+                track.detection is not None and track.detection.silhouette and
+                len(track.places) >= PLACES_KEPT):
+            return False
+        places = np.asarray(track.places)
+        middle = places.mean(axis=0)
+        return stamp_s - track.points_seen_s > self.config.legs_lapse_s and \
+            bool((np.hypot(*(places - middle).T) <= self.config.object_radius_m).all())
 
     def predicted_xy(self, stamp_s):
         """Return each track's floor position predicted to ``stamp_s`` (no state change)."""
@@ -1720,6 +1753,7 @@ class PeopleTracker:
             self.tracks = []
             self.object_memory = []
         dt = 0.0 if self.stamp_s is None or stamp_s < self.stamp_s else stamp_s - self.stamp_s
+        previous_s = self.stamp_s
         self.stamp_s = stamp_s
         self._predict(dt)
         assigned, beside = set(), []
@@ -1749,6 +1783,13 @@ class PeopleTracker:
                             for i in free])[None, :]
             distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
                                 distance)
+            # A silhouette (no points of its own) only continues a track seen in the previous
+            # pair: a published person missed for a pair beside a warm screen's silhouette
+            # would take it and stay there.
+            unseen = np.array([previous_s is None or t.last_seen_s < previous_s
+                               for t in group])[:, None]
+            shape = np.array([detections[i].silhouette for i in free])[None, :]
+            distance = np.where(shape & unseen, np.inf, distance)
             if group[0].confirmed:
                 # Where a warm object has been, nearer than the track's prediction: the
                 # object's, not a passing published track's (it coasts instead).
@@ -1788,6 +1829,7 @@ class PeopleTracker:
                                      depth_spread_m=detection.depth_spread_m,
                                      detection=detection,
                                      legs_recent=(detection.legs_seen,),
+                                     points_seen_s=stamp_s,
                                      places=((detection.x, detection.y),),
                                      place_times=(stamp_s,),
                                      whole_heights=whole_heights, bounds=bounds))
@@ -1821,6 +1863,13 @@ class PeopleTracker:
                 self.ended.append(track.track_id)
                 self.counts['legs_lapsed'] += 1
                 track.confirmed, track.seen_as_person, track.track_id = False, False, 0
+            elif self._shape_lapsed(track, stamp_s):
+                # Withdrawn as above; its walk so far no longer counts (it would publish it
+                # again at once).
+                self.ended.append(track.track_id)
+                self.counts['shape_lapsed'] += 1
+                track.confirmed, track.seen_as_person, track.track_id = False, False, 0
+                track.start, track.farthest_m, track.far_hits = track.state[:2].copy(), 0.0, 0
         for track in self.tracks:
             on_legs = self.config.confirm_on_legs and track.hits == 1 and \
                 track.detection is not None and track.detection.legs_under_head and \
@@ -1885,7 +1934,7 @@ class PeopleEstimator:
                        'silhouette_no_disparity': 0, 'silhouette_not_back': 0,
                        'silhouette_two_depths': 0,
                        'silhouette_not_body': 0,
-                       'silhouette_detections': 0, 'silhouette_not_checked': 0}
+                       'silhouette_detections': 0, 'silhouette_pairs_not_checked': 0}
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None, right_image=None,
@@ -1900,8 +1949,8 @@ class PeopleEstimator:
         ``min_travel_m`` first (``cut_legs_not_checked``). With the rectified ``right_image``
         and ``stereo`` (``(fx B, cx_left - cx_right)`` of the right camera_info's ``P``) too,
         bodies rising out of the top edge that no detection covers are found by their
-        silhouettes (``silhouette_detections``, ``silhouette_margin_counts``); without, the
-        pairs are counted (``silhouette_not_checked``).
+        silhouettes (``silhouette_detections``, ``silhouette_margin_counts``); with the left
+        image but without those, the pairs are counted (``silhouette_pairs_not_checked``).
         """
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -1955,13 +2004,12 @@ class PeopleEstimator:
             self.counts['silhouette_not_checked'] += len(detections)
         if warm is not None:
             detections = [self._head_above(d, warm, pixels) for d in detections]
-        if self.config.silhouette_margin_counts > 0:
-            if warm is not None and intrinsics is not None and right_image is not None and \
-                    stereo is not None:
+        if self.config.silhouette_margin_counts > 0 and warm is not None:
+            if intrinsics is not None and right_image is not None and stereo is not None:
                 detections = detections + self._silhouettes(
                     detections, warm, left_image, right_image, intrinsics, stereo, pixels)
-            else:
-                self.counts['silhouette_not_checked'] += 1
+            else:       # the left image alone: no silhouette's depth
+                self.counts['silhouette_pairs_not_checked'] += 1
         tracks = self.tracker.update(detections, stamp_s,
                                      None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
@@ -1978,7 +2026,8 @@ class PeopleEstimator:
                              f'image shape {warm.shape}')
         return silhouette_detections(detections, weak, warm, left_image, right, self.transform,
                                      intrinsics, stereo, pixels, self.config, self.counts,
-                                     valid_right=np.isfinite(right) & (right > 0))
+                                     valid_right=np.isfinite(right) & (right > 0),
+                                     valid_left=background.valid)
 
     def _warm_support(self, points):
         """
@@ -2026,4 +2075,10 @@ class PeopleEstimator:
                 members = used[track.detection.members]
                 rows, cols, inside = pixel_indices(image_shape, x_left[members], y[members])
                 mask[rows[inside], cols[inside]] = True
+            # A silhouette's own pixels, most of them under the warm margin: learned with the
+            # cool time constant, a far person standing still would fade within a minute.
+            if track.updated and track.detection is not None and \
+                    track.detection.shape_pixels is not None and \
+                    mask.size > track.detection.shape_pixels.max(initial=-1):
+                mask.flat[track.detection.shape_pixels] = True
         return ndimage.binary_dilation(mask, iterations=2) if mask.any() else mask

@@ -17,9 +17,11 @@ them, which carries its outline) with the right image along the rows.
    radiator or panel reaching the top row too: the body's columns run far longer).
 3. ``silhouette_disparity``: zero-mean normalised cross-correlation (ZNCC) of the
    silhouette dilated by ``ring_px`` with the right image shifted by each integer disparity,
-   refined by a parabola through the best one's neighbours. ZNCC, not a sum of absolute
-   differences: the two cameras' offsets and gains differ (each its own flat-field
-   correction) and the silhouette is faint.
+   then by shifts ``REFINE_STEP_PX`` apart around the best one (the right image interpolated
+   along the row), refined by a parabola through the finest best's neighbours;
+   ``right_to_left_agrees`` searches the shape found in the right image back in the left.
+   ZNCC, not a sum of absolute differences: the two cameras' offsets and gains differ (each
+   its own flat-field correction) and the silhouette is faint.
 """
 
 import numpy as np
@@ -65,14 +67,17 @@ def _split_columns(columns, runs, split):
     return sorted(groups, key=lambda group: int(group[0]))
 
 
-def top_silhouettes(weak, strong, min_rows=3, split=0.5):
+def top_silhouettes(weak, strong, min_rows=3, split=0.5, min_columns=3):
     """
     Return the silhouettes rising out of the image's top edge, as bool masks.
 
     ``weak``: pixels warmer than the background by the lower margin; ``strong``: the warm
     mask (higher margin). A silhouette is one group of columns (``_split_columns``) of an
     8-connected region of ``weak`` that holds a ``strong`` pixel, each column's pixels from
-    row 0 down to its first cool one, where that run is at least ``min_rows`` long.
+    row 0 down to its first cool one, where that run is at least ``min_rows`` long. A group
+    narrower than ``min_columns`` is left out: a sliver split off a wide warm thing (a
+    radiator cut into pieces by a person in front of it) matches anywhere; a body 4.3 m off
+    or farther is 4-6 columns wide at 80x60.
     """
     weak = np.asarray(weak, dtype=bool)
     strong = np.asarray(strong, dtype=bool) & weak
@@ -87,6 +92,8 @@ def top_silhouettes(weak, strong, min_rows=3, split=0.5):
         runs = top_runs(region)
         columns = np.flatnonzero(runs >= min_rows)
         for group in _split_columns(columns, runs, split):
+            if len(group) < min_columns:
+                continue
             mask = np.zeros(weak.shape, dtype=bool)
             for column in group:
                 mask[:runs[column], column] = True
@@ -101,13 +108,14 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
 
     The pixels of ``mask`` dilated by ``ring_px`` in the rectified ``left`` image are
     correlated (ZNCC) with the pixels ``d`` columns to their left in ``right`` for every
-    integer ``d`` in ``low..high`` (the disparity bounds, px) whose shift keeps at least
-    ``MIN_INSIDE_FRACTION`` of them inside the right image (and on its ``valid_right``
-    pixels, the ones with data); the best one is refined by the parabola through its
-    neighbours' ``1 - ZNCC`` (half a pixel at most). The ring leaves out the pixels of
-    ``exclude`` (bool, the left image's shape): another warm thing beside the silhouette, at
-    its own depth, would decide the correlation. ``correlation`` is the best ZNCC
-    (-1..1). NaN when no shift is usable, the best lies on a bound (the true one may lie
+    integer ``d`` in ``low..high`` (the disparity bounds, px; negative ones too, with a
+    negative ``cx_left - cx_right``) whose shift keeps at least ``MIN_INSIDE_FRACTION`` of
+    them inside the right image (and on its ``valid_right`` pixels, the ones with data); the
+    best one is refined on shifts ``REFINE_STEP_PX`` apart within half a pixel of it and by
+    the parabola through the finest best's neighbours' ``1 - ZNCC``. The ring leaves out the
+    pixels of ``exclude`` (bool, the left image's shape): another warm thing beside the
+    silhouette, at its own depth, would decide the correlation. ``correlation`` is the best
+    ZNCC (-1..1). NaN when no shift is usable, the best lies on a bound (the true one may lie
     beyond) or the region is flat.
     """
     left = np.asarray(left, dtype=np.float64)
@@ -118,7 +126,7 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     if exclude is not None:
         region &= mask | ~np.asarray(exclude, dtype=bool)
     rows, cols = np.nonzero(region)
-    low, high = max(int(np.floor(low)), 0), int(np.ceil(high))
+    low, high = int(np.floor(low)), int(np.ceil(high))
     if not len(rows) or high < low:
         return float('nan'), float('nan')
     values = left[rows, cols]

@@ -98,7 +98,8 @@ class PeopleNode(Node):
                        'dropped_bad_input': 0, 'pairs_without_image': 0,
                        'images_without_points': 0, 'points_not_finite': 0,
                        'camera_info_rejected': 0, 'pairs_without_right_image': 0,
-                       'right_images_without_points': 0, 'right_camera_info_rejected': 0}
+                       'right_images_without_points': 0, 'right_camera_info_rejected': 0,
+                       'right_image_rejected': 0}
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -106,6 +107,7 @@ class PeopleNode(Node):
                 "room's origin): set x_m ... roll_deg (the launch files take them from "
                 'rig_pose_file) or people are placed wrongly')
         self.last_error = ''
+        self.right_error = ''           # the last right/camera_info or right/image_rect refused
         self.frequency = diagnostics.FrequencyTracker(
             self.get_parameter('target_frequency').value)
         self.add_on_set_parameters_callback(self._on_parameters)
@@ -156,9 +158,9 @@ class PeopleNode(Node):
         p = np.array(msg.p, dtype=np.float64).reshape(3, 4)
         if not (np.isfinite(p).all() and p[0, 0] > 0 and p[0, 3] < 0):
             self.counts['right_camera_info_rejected'] += 1
-            self.last_error = (f'right/camera_info: P: expected fx = P[0] > 0 and P[3] = '
-                               f'-fx B < 0 (left camera first), got {list(msg.p)}')
-            self.get_logger().warning(self.last_error, throttle_duration_sec=5.0)
+            self.right_error = (f'right/camera_info: P: expected fx = P[0] > 0 and P[3] = '
+                                f'-fx B < 0 (left camera first), got {list(msg.p)}')
+            self.get_logger().warning(self.right_error, throttle_duration_sec=5.0)
             return
         self.right_projection = p
 
@@ -187,6 +189,29 @@ class PeopleNode(Node):
                 self.counts[dropped] += 1
         self._on_pair(points_msg, image_msg, right_msg)
 
+    def _right_image(self, right_msg, image):
+        """
+        Return the right image of a pair for the silhouettes, or None.
+
+        A bad one (not decodable, not the left image's size) does not drop the pair, only its
+        silhouettes: counted (``right_image_rejected``) and named in the diagnostics.
+        """
+        if right_msg is None or image is None:
+            return None
+        try:
+            right = conversions.msg_to_image(right_msg)
+            if right.shape != image.shape:
+                raise ValueError(f'{right.shape[1]}x{right.shape[0]}, left/image_rect is '
+                                 f'{image.shape[1]}x{image.shape[0]}')
+        except ValueError as error:
+            self.counts['right_image_rejected'] += 1
+            self.right_error = f'right/image_rect: {error}'
+            self.get_logger().warning(f'{self.right_error}: no silhouettes for this pair',
+                                      throttle_duration_sec=5.0)
+            return None
+        self.right_error = ''
+        return right
+
     def _stereo(self):
         """``(fx B, cx_left - cx_right)`` from the two camera_infos' P, or None."""
         if self.right_projection is None or self.camera_info is None:
@@ -205,21 +230,18 @@ class PeopleNode(Node):
             fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
                                                     ('disparity', 'confidence'))
             image = None if image_msg is None else conversions.msg_to_image(image_msg)
-            right = None if right_msg is None or image is None else \
-                conversions.msg_to_image(right_msg)
             info = self.camera_info
             if image is not None and info.width and image.shape != (info.height, info.width):
                 raise ValueError(f'left/image_rect: {image.shape[1]}x{image.shape[0]}, '
                                  f'left/camera_info says {info.width}x{info.height}')
-            if right is not None and right.shape != image.shape:
-                raise ValueError(f'right/image_rect: {right.shape[1]}x{right.shape[0]}, '
-                                 f'left/image_rect is {image.shape[1]}x{image.shape[0]}')
+
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = str(error)
             self.get_logger().warning(f'pair dropped: {error}', throttle_duration_sec=5.0)
             return
         self.last_error = ''
+        right = self._right_image(right_msg, image)
         points = np.column_stack([fields['x'], fields['y'], fields['z']])
         finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
         self.counts['points_not_finite'] += int((~finite).sum())
@@ -269,6 +291,12 @@ class PeopleNode(Node):
                 self.counts['pairs_without_image']:
             level, message = diagnostics.WARN, 'no left/image_rect with the stamps of ' \
                 'points2 (use_image): no people can be found'
+        elif self.right_error:
+            level, message = diagnostics.WARN, f'no silhouettes: {self.right_error}'
+        elif self.use_right and self.counts['pairs_without_right_image'] and \
+                self.right_projection is None:
+            level, message = diagnostics.WARN, 'no right/camera_info: far bodies starved of ' \
+                'matches are not placed by their silhouettes'
         status = diagnostics.status(f'{self.get_name()}: people', 'st_stereo', level, message,
                                     values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
