@@ -285,10 +285,20 @@ def far_pairs_rendered(count):
         yield rectifier.rectify(frame['left'], frame['right'])
 
 
-def right_messages(sec, left, right):
-    """points2 without a point, the left and the right rectified images of one stamp."""
+def pair_info_msg(header, skew_s):
+    """Return the driver's pair_info of a pair (both cameras at its stamp, ``skew_s`` apart)."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from st_stereo.lepton.pairing import pair_info_values
+    stamp = header.stamp.sec + 1e-9 * header.stamp.nanosec
+    values = pair_info_values(skew_s, (stamp, stamp + skew_s), (0, 0), (False, False))
+    return DiagnosticArray(header=header, status=[DiagnosticStatus(
+        name='pair', values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])])
+
+
+def right_messages(index, left, right):
+    """points2 without a point, the left and the right images of pair ``index`` (8.7 Hz)."""
     header = Header(frame_id='stereo_left_optical_frame')
-    header.stamp.sec = sec
+    header.stamp.sec, header.stamp.nanosec = 1 + index // 8, int(115e6 * (index % 8))
     empty = np.empty((0, 3))
     cloud = point_cloud(header, empty, np.empty(0), np.empty(0), np.empty(0), np.empty(0))
     return (cloud, image_to_msg(np.rint(left).astype(np.uint16), header),
@@ -302,9 +312,15 @@ def test_with_the_right_image_a_far_body_without_matches_is_placed_by_its_silhou
         cloud, left_msg, right_msg = right_messages(sec, left, right)
         node._on_image(left_msg)
         node._on_right_image(right_msg)
+        if sec > 1:                                   # the first pair's pair_info is lost
+            node._on_pair_info(pair_info_msg(cloud.header, 0.0))
         node._on_points(cloud)
     assert node.counts['pairs_without_right_image'] == 0
+    assert node.counts['pairs_without_pair_info'] == 1
     assert node.estimator.counts['silhouette_detections'] >= 3
+    # Skew 0 (the rendering's): corrected by nothing, but its motion measured from the second
+    # pair on; the first had no pair_info.
+    assert node.estimator.counts['silhouette_skew_corrected'] >= 2
     tracks = node.estimator.tracker.tracks
     assert len(tracks) == 1 and tracks[0].cut_top
     assert (tracks[0].state[0], tracks[0].state[1]) == pytest.approx((1.5, 4.6), abs=0.35)

@@ -972,6 +972,30 @@ TOP_SILHOUETTE_MAX_WIDTH_M = 0.7  # shoulders (0.5 m), a pixel of blur each side
 SILHOUETTE_NEAREST_M = 1.0        # the disparity searched: from max_range_m to this depth
 
 
+SHAPE_MAX_STEP_PX = 8     # a shape's shift between consecutive left images searched (70 px/s)
+SHAPE_MAX_DT_S = 0.3      # consecutive pairs (0.115 s at 8.7 Hz, one dropped)
+
+
+def _skew_shift_px(left, mask, motion, exclude):
+    """
+    Return how far a moving shape moved on in the image during the pair's skew, px (or NaN).
+
+    ``motion`` is ``(previous_left, dt_s, skew_s)`` (``silhouette_detections``): the shape's
+    shift since the previous left image over ``dt_s``, times ``skew_s``.
+    """
+    if motion is None:
+        return float('nan')
+    previous, dt_s, skew_s = motion
+    if previous is None or skew_s is None or not 0.0 < dt_s <= SHAPE_MAX_DT_S or \
+            np.shape(previous) != np.shape(left):
+        return float('nan')
+    valid_previous = np.isfinite(previous) & (np.asarray(previous) > 0)
+    step, _ = silhouette_disparity(left, previous, mask, -SHAPE_MAX_STEP_PX, SHAPE_MAX_STEP_PX,
+                                   valid_right=valid_previous, exclude=exclude)
+    # silhouette_disparity finds s with previous[c - s] ~ left[c]: the shape moved by +s.
+    return step / dt_s * skew_s if math.isfinite(step) else float('nan')
+
+
 def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, valid_right,
                exclude):
     """
@@ -995,7 +1019,8 @@ def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, vali
 
 
 def silhouette_detections(detections, weak, warm, left, right, transform, intrinsics, stereo,
-                          pixels, config=None, counts=None, valid_right=None, valid_left=None):
+                          pixels, config=None, counts=None, valid_right=None, valid_left=None,
+                          motion=None):
     """
     Return detections of bodies rising out of the top edge that no detection covers.
 
@@ -1020,15 +1045,29 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     bound, ``top_edge_height_m``), without legs, ``silhouette`` True; its points are those
     on its pixels, its confidence the correlation, its covariance the depth's
     (``sigma_Z = Z sigma_d / d``, ``disparity_sigma_px``) along the viewing direction and a
-    quarter of its width across it. ``counts`` (a dict) gains ``silhouettes``,
-    ``silhouette_covered``, ``silhouette_no_disparity``, ``silhouette_not_body`` and
-    ``silhouette_detections``.
+    quarter of its width across it.
+
+    ``motion``: ``(previous_left, dt_s, skew_s)``, the previous pair's rectified left image,
+    the time since it and this pair's skew (right acquisition less left, s). The right
+    camera saw a moving shape ``skew_s`` later, where it had moved on by its image velocity
+    ``v`` (px/s) times the skew: the disparity measured is ``d - v skew``. ``v`` is the
+    shape's shift since the previous left image (``silhouette_disparity`` of this left image
+    against it, within ``SHAPE_MAX_STEP_PX``) over ``dt_s``; the depth is that of
+    ``d + v skew`` (``silhouette_skew_corrected``; without motion, or no shift found, or
+    ``dt_s`` over ``SHAPE_MAX_DT_S``: ``silhouette_skew_not_corrected``). The checks above
+    compare the images as they are and use the measured disparity.
+
+    ``counts`` (a dict) gains ``silhouettes``, ``silhouette_covered``,
+    ``silhouette_no_disparity``, ``silhouette_not_back``, ``silhouette_two_depths``,
+    ``silhouette_not_body``, ``silhouette_detections``, ``silhouette_skew_corrected`` and
+    ``silhouette_skew_not_corrected``.
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('silhouettes', 'silhouette_covered', 'silhouette_no_disparity',
                 'silhouette_not_back', 'silhouette_two_depths', 'silhouette_not_body',
-                'silhouette_detections'):
+                'silhouette_detections', 'silhouette_skew_corrected',
+                'silhouette_skew_not_corrected'):
         counts.setdefault(key, 0)
     fx, fy, cx, cy = intrinsics
     fx_baseline, disparity_offset = stereo
@@ -1059,12 +1098,21 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
                                     valid_left=valid_left, exclude=exclude):
             counts['silhouette_not_back'] += 1
             continue
-        depth = fx_baseline / (disparity - disparity_offset)
         rows, cols = np.nonzero(mask)
-        if not _one_depth(left, right, mask, cols, (low, high), stereo, depth,
+        if not _one_depth(left, right, mask, cols, (low, high), stereo,
+                          fx_baseline / (disparity - disparity_offset),
                           2 * config.person_radius_m, valid_right, exclude):
             counts['silhouette_two_depths'] += 1
             continue
+        moved = _skew_shift_px(left, mask, motion, exclude)
+        counts['silhouette_skew_corrected' if math.isfinite(moved) else
+               'silhouette_skew_not_corrected'] += 1
+        if math.isfinite(moved):
+            disparity += moved
+            if not disparity > disparity_offset:
+                counts['silhouette_no_disparity'] += 1
+                continue
+        depth = fx_baseline / (disparity - disparity_offset)
         u, v = 0.5 * (cols.min() + cols.max()), rows.mean()
         body = rotation @ np.array([(u - cx) * depth / fx, (v - cy) * depth / fy, depth]) + \
             translation
@@ -1934,11 +1982,13 @@ class PeopleEstimator:
                        'silhouette_no_disparity': 0, 'silhouette_not_back': 0,
                        'silhouette_two_depths': 0,
                        'silhouette_not_body': 0,
-                       'silhouette_detections': 0, 'silhouette_pairs_not_checked': 0}
+                       'silhouette_detections': 0, 'silhouette_pairs_not_checked': 0,
+                       'silhouette_skew_corrected': 0, 'silhouette_skew_not_corrected': 0}
+        self.previous_left = None       # (stamp, the last pair's left image) for the skew
 
     def process(self, stamp_s, points, x_left, y, disparity=None, confidence=None,
                 left_image=None, image_shape=None, intrinsics=None, right_image=None,
-                stereo=None):
+                stereo=None, skew_s=None):
         """
         Return the PeopleFrame of one pair (see the class docstring).
 
@@ -1951,6 +2001,8 @@ class PeopleEstimator:
         bodies rising out of the top edge that no detection covers are found by their
         silhouettes (``silhouette_detections``, ``silhouette_margin_counts``); with the left
         image but without those, the pairs are counted (``silhouette_pairs_not_checked``).
+        ``skew_s``: the pair's right acquisition less its left one (``pair_info``), for the
+        silhouettes' motion during it (their disparities; None: not corrected).
         """
         self.counts['pairs'] += 1
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -2007,16 +2059,25 @@ class PeopleEstimator:
         if self.config.silhouette_margin_counts > 0 and warm is not None:
             if intrinsics is not None and right_image is not None and stereo is not None:
                 detections = detections + self._silhouettes(
-                    detections, warm, left_image, right_image, intrinsics, stereo, pixels)
+                    detections, warm, left_image, right_image, intrinsics, stereo, pixels,
+                    self._motion(stamp_s, skew_s))
             else:       # the left image alone: no silhouette's depth
                 self.counts['silhouette_pairs_not_checked'] += 1
         tracks = self.tracker.update(detections, stamp_s,
                                      None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
+        if left_image is not None:
+            self.previous_left = (stamp_s, np.asarray(left_image, dtype=np.float64))
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
 
+    def _motion(self, stamp_s, skew_s):
+        """``(previous left image, time since it, skew)`` for ``silhouette_detections``."""
+        if self.previous_left is None or skew_s is None:
+            return None
+        return self.previous_left[1], stamp_s - self.previous_left[0], skew_s
+
     def _silhouettes(self, detections, warm, left_image, right_image, intrinsics, stereo,
-                     pixels):
+                     pixels, motion=None):
         """``silhouette_detections`` of this pair (the background's last difference)."""
         background = self.background
         weak = background.valid & (background.difference > self.config.silhouette_margin_counts)
@@ -2027,7 +2088,7 @@ class PeopleEstimator:
         return silhouette_detections(detections, weak, warm, left_image, right, self.transform,
                                      intrinsics, stereo, pixels, self.config, self.counts,
                                      valid_right=np.isfinite(right) & (right > 0),
-                                     valid_left=background.valid)
+                                     valid_left=background.valid, motion=motion)
 
     def _warm_support(self, points):
         """

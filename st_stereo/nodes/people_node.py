@@ -11,7 +11,10 @@ with a P or R that cannot be used is dropped, counted and named in the diagnosti
 ``use_image`` and ``silhouette_margin_counts`` > 0 also ``right/image_rect`` and
 ``right/camera_info`` (its P: ``fx B`` and the right principal point): far bodies starved of
 matches are placed by their silhouettes' disparity; a pair without the right image of its
-stamp is counted (``pairs_without_right_image``) and gets no silhouettes.
+stamp is counted (``pairs_without_right_image``) and gets no silhouettes. ``pair_info`` (the
+driver's, as the matcher reads it) gives each pair's camera skew, for a moving silhouette's
+disparity; a pair without it is counted (``pairs_without_pair_info``) and its silhouettes
+are not corrected for the skew.
 
 Publishes, each with the pair's stamp and ``world_frame``: ``people/poses``
 (geometry_msgs/PoseArray), ``people/detections`` (PointCloud2, one point per person:
@@ -35,6 +38,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from st_stereo.core.people import PeopleConfig, PeopleEstimator, project_to_pixels, \
     world_from_rectified
 from st_stereo.core.rig_pose import nearest_rotation, RigPose, RigPoseError
+from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics, people_messages
 from st_stereo.nodes.node_parameters import people_config_parameters, PEOPLE_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters
@@ -89,6 +93,9 @@ class PeopleNode(Node):
                                      qos_profile_sensor_data)
             self.create_subscription(CameraInfo, 'right/camera_info', self._on_right_info,
                                      qos_profile_sensor_data)
+            self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info,
+                                     RELIABLE)
+        self.skews = collections.OrderedDict()      # stamp key -> skew, s (pair_info)
         self.create_subscription(PointCloud2, 'points2', self._on_points,
                                  qos_profile_sensor_data)
         self.camera_info = None
@@ -99,7 +106,8 @@ class PeopleNode(Node):
                        'images_without_points': 0, 'points_not_finite': 0,
                        'camera_info_rejected': 0, 'pairs_without_right_image': 0,
                        'right_images_without_points': 0, 'right_camera_info_rejected': 0,
-                       'right_image_rejected': 0}
+                       'right_image_rejected': 0, 'pairs_without_pair_info': 0,
+                       'pair_info_unreadable': 0}
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -154,6 +162,19 @@ class PeopleNode(Node):
             raise ValueError(f'R: {error}') from None
         return world_from_rectified(self.pose, r1)
 
+    def _on_pair_info(self, msg):
+        values = {item.key: item.value for status in msg.status for item in status.values}
+        try:
+            _, skew = pair_times_from_values(values)
+        except ValueError as error:
+            self.counts['pair_info_unreadable'] += 1
+            self.get_logger().warning(f'{error}: that pair is not corrected for the skew',
+                                      throttle_duration_sec=5.0)
+            return
+        self.skews[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = skew
+        while len(self.skews) > IMAGES_KEPT:
+            self.skews.popitem(last=False)
+
     def _on_right_info(self, msg):
         p = np.array(msg.p, dtype=np.float64).reshape(3, 4)
         if not (np.isfinite(p).all() and p[0, 0] > 0 and p[0, 3] < 0):
@@ -181,13 +202,16 @@ class PeopleNode(Node):
         key = (points_msg.header.stamp.sec, points_msg.header.stamp.nanosec)
         image_msg = self.images.pop(key, None)
         right_msg = self.right_images.pop(key, None)
+        skew = self.skews.pop(key, None)
+        for old in [k for k in self.skews if k < key]:
+            del self.skews[old]
         # Older images can no longer be paired: points come in stamp order.
         for images, dropped in ((self.images, 'images_without_points'),
                                 (self.right_images, 'right_images_without_points')):
             for old in [k for k in images if k < key]:
                 del images[old]
                 self.counts[dropped] += 1
-        self._on_pair(points_msg, image_msg, right_msg)
+        self._on_pair(points_msg, image_msg, right_msg, skew)
 
     def _right_image(self, right_msg, image):
         """
@@ -219,7 +243,7 @@ class PeopleNode(Node):
         left = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         return -self.right_projection[0, 3], left[0, 2] - self.right_projection[0, 2]
 
-    def _on_pair(self, points_msg, image_msg=None, right_msg=None):
+    def _on_pair(self, points_msg, image_msg=None, right_msg=None, skew=None):
         self.counts['pairs'] += 1
         if self.camera_info is None:
             self.counts['waiting_for_camera_info'] += 1
@@ -254,6 +278,8 @@ class PeopleNode(Node):
             finite = np.zeros_like(finite)
         if self.use_right and image is not None and (right is None or self._stereo() is None):
             self.counts['pairs_without_right_image'] += 1
+        elif self.use_right and image is not None and skew is None:
+            self.counts['pairs_without_pair_info'] += 1
         p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         x_left, y = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
         shape = None if image is None else image.shape
@@ -265,7 +291,7 @@ class PeopleNode(Node):
             None if fields['disparity'] is None else fields['disparity'][finite],
             None if fields['confidence'] is None else fields['confidence'][finite],
             image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]), right_image=right,
-            stereo=self._stereo())
+            stereo=self._stereo(), skew_s=skew)
         header = Header(stamp=points_msg.header.stamp, frame_id=self.pose.world_frame)
         self.poses_pub.publish(people_messages.poses_msg(header, frame.tracks))
         self.detections_pub.publish(people_messages.detections_cloud(header, frame.tracks))

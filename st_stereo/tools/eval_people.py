@@ -254,7 +254,8 @@ class PeopleScoring:
                                         intrinsics=(model.fx, model.fy, model.cx, model.cy),
                                         right_image=right,
                                         stereo=(model.fx * model.baseline,
-                                                model.disparity_offset))
+                                                model.disparity_offset),
+                                        skew_s=t_right - t_left)
         self.tally.milliseconds.append(1e3 * (time.perf_counter() - start))
         self.tally.add_labelled(labels, heads_world, heads_rectified, model, left.shape,
                                 people.tracks)
