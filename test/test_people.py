@@ -1830,18 +1830,26 @@ def test_a_person_missed_beside_a_warm_screen_s_silhouette_does_not_stay_on_it(m
         assert tracker.counts['shape_lapsed'] == 0
 
 
-def test_a_silhouette_does_not_pick_up_a_track_missed_in_the_previous_pair():
+@pytest.mark.parametrize('speed', [0.3, 0.6, 1.2])
+def test_a_far_walker_on_silhouettes_alone_keeps_its_id(speed):
+    # Published from its whole detections near the rig, then far off on silhouettes only for
+    # 20 s, walking back and forth: never withdrawn (it does not stand still).
     tracker = PeopleTracker(PeopleConfig())
-    for index, t in enumerate(np.arange(0.0, 0.5, 0.115)):
-        tracker.update([Detection(0.0, 4.0 + 0.05 * index, 1.7, 60, 1.0, np.eye(2) * 1e-3)], t)
-    assert [track.track_id for track in tracker.tracks] == [1]
-    tracker.update([], 0.575)                                 # missed
-    shape = Detection(0.0, 4.3, 1.1, 0, 0.9, np.eye(2) * 1e-3, head_visible=False,
-                      cut_top=True, silhouette=True)
-    tracker.update([shape], 0.69)
-    first = [track for track in tracker.tracks if track.track_id == 1]
-    assert first and first[0].last_seen_s < 0.69             # it coasts; a new track starts
-    assert len(tracker.tracks) == 2
+    ids = set()
+    x = 0.0
+    direction = 1.0
+    for index, t in enumerate(np.arange(0.0, 22.0, 0.115)):
+        if index < 10:
+            detection = Detection(0.0, 2.5 + 0.2 * index, 1.7, 80, 1.0, np.eye(2) * 1e-3)
+        else:
+            x += direction * speed * 0.115
+            if abs(x) > 1.5:
+                direction = -direction
+            detection = Detection(x, 4.5, 1.1, 0, 0.9, np.eye(2) * 1e-3, head_visible=False,
+                                  cut_top=True, silhouette=True)
+        ids.update(track.track_id for track in tracker.update([detection], t))
+    assert ids == {1}
+    assert tracker.counts['shape_lapsed'] == 0
 
 
 def test_the_pixels_of_a_published_silhouette_are_kept_from_the_background():
@@ -1850,9 +1858,19 @@ def test_the_pixels_of_a_published_silhouette_are_kept_from_the_background():
                           cut_top=True, members=np.array([], dtype=int), silhouette=True,
                           shape_pixels=shape)
     track = types.SimpleNamespace(updated=True, detection=detection)
-    protect = PeopleEstimator._people_pixels([track], np.array([], dtype=int), np.empty(0),
-                                             np.empty(0), (60, 80))
-    assert protect.reshape(-1)[shape].all()
+    hold = PeopleEstimator._shape_pixels([track], (60, 80))
+    assert hold.reshape(-1)[shape].all() and hold.sum() == len(shape)
     track.updated = False
-    assert not PeopleEstimator._people_pixels([track], np.array([], dtype=int), np.empty(0),
-                                              np.empty(0), (60, 80)).any()
+    assert not PeopleEstimator._shape_pixels([track], (60, 80)).any()
+    # Held pixels are not learned, warm or not (a silhouette is mostly under the margin).
+    background = WarmBackground(PeopleConfig())
+    room = np.full((60, 80), 8000.0)
+    background.update(room, 0.0)
+    body = room.copy()
+    body.reshape(-1)[shape] += 60.0                 # under warm_margin_counts (100)
+    for k in range(1, 40):
+        background.update(body, 0.115 * k, hold=hold)
+    assert np.allclose(background.background.reshape(-1)[shape], 8000.0)
+    for k in range(40, 80):
+        background.update(body, 0.115 * k)
+    assert (background.background.reshape(-1)[shape] > 8020.0).all()     # learned

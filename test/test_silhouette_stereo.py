@@ -182,21 +182,34 @@ def test_a_right_image_of_another_size_is_named():
 
 
 def test_slivers_split_off_a_wide_warm_thing_are_not_silhouettes():
-    # A radiator reaching the top row, cut by a body in front of it into a 2-column piece on
-    # the left and a wide piece on the right: the 2-column one is left out.
+    # A radiator reaching the top row, cut by a body in front of it into a 1-column piece on
+    # the left and a wide piece on the right: the 1-column one is left out.
     body = _region((0, 30), (30, 36))
-    left_piece, right_piece = _region((0, 6), (28, 30)), _region((0, 6), (36, 44))
+    left_piece, right_piece = _region((0, 6), (29, 30)), _region((0, 6), (36, 44))
     weak = body | left_piece | right_piece
     masks = top_silhouettes(weak, body, min_rows=3, split=0.5)
     assert [int(m.sum()) for m in masks] == [180, 48]
-    assert len(top_silhouettes(weak, body, min_rows=3, split=0.5, min_columns=2)) == 3
+    assert len(top_silhouettes(weak, body, min_rows=3, split=0.5, min_columns=1)) == 3
 
 
-def test_a_negative_disparity_is_found_too():
+@pytest.mark.parametrize('disparity', [-3.4, -1.2])
+def test_a_negative_disparity_is_found_too_and_comes_home(disparity):
     # cx_left - cx_right < 0: a far body's disparity may be negative.
-    left, right, body = _scene(-3.4)
+    left, right, body = _scene(disparity)
     found, _ = silhouette_disparity(left, right, body, -10, 10)
-    assert found == pytest.approx(-3.4, abs=0.2)
+    assert found == pytest.approx(disparity, abs=0.2)
+    assert right_to_left_agrees(left, right, body, found, -10, 10, exclude=body)
+
+
+def test_no_skew_correction_when_the_previous_image_does_not_show_the_shape():
+    from st_stereo.core.people import _skew_shift_px
+    left, _, body = _scene(7.3)
+    moved = np.roll(left, 2, axis=1)                 # the previous image: 2 px to the left
+    shift = _skew_shift_px(left, body, (moved, 0.115, 0.045), body, 0.5)
+    assert shift == pytest.approx(-2.0 / 0.115 * 0.045, abs=0.1)
+    blank = np.full(SHAPE, 8000.0) + np.random.default_rng(1).normal(0.0, 3.0, SHAPE)
+    assert math.isnan(_skew_shift_px(left, body, (blank, 0.115, 0.045), body, 0.5))
+    assert math.isnan(_skew_shift_px(left, body, (moved, 0.9, 0.045), body, 0.5))  # too old
 
 
 def test_pixels_without_data_in_the_ring_are_left_out():

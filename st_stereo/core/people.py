@@ -116,12 +116,13 @@ class PeopleConfig:
         'the background by this, connected to warm ones (warm_margin_counts), make its shape, '
         'and the disparity of the whole shape (correlated with the right image) its depth; '
         'such a detection is cut by the top edge without legs: a new track needs '
-        'min_travel_m or steady_walk_m to be published, and it continues only a track seen in '
-        'the previous pair; the pixels of a published one are not learned into the background '
-        '(needs right/image_rect and right/camera_info); 0: off, raw counts')
+        'min_travel_m or steady_walk_m to be published; the pixels of a published one are not '
+        "learned into the background; corrected for the cameras' skew with pair_info (needs "
+        'right/image_rect and right/camera_info); 0: off, raw counts')
     silhouette_min_correlation: float = _field(
         0.5, "a silhouette's disparity is used only when its correlation (ZNCC, -1..1) with "
-        'the right image is at least this')
+        'the right image is at least this, and its shift since the previous left image (for the '
+        'skew) only when that one is')
     disparity_sigma_px: float = _field(
         0.15, 'disparity uncertainty of one point, for the position covariance, pixels')
     gate_m: float = _field(
@@ -158,9 +159,9 @@ class PeopleConfig:
         'neither legs in min_hits of min_hits + 1 detections nor its head (whole) for this '
         'long since its publication is withdrawn (its id ends; the track goes on '
         'unpublished): a warm screen lent legs by passers-by is not a person for good; so is '
-        'one standing still on silhouettes alone (silhouette_margin_counts, no detection of '
-        'points) for this long (a person missed as a warm screen showed beside them); 0: '
-        'never, s')
+        'one standing still (within object_radius_m) on silhouettes alone '
+        '(silhouette_margin_counts, no detection of points) for this long (a person missed as '
+        'a warm screen showed beside them); 0: never, s')
     legs_min_fraction: float = _field(
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
@@ -362,14 +363,15 @@ class WarmBackground:
         self.stamp_s = None
         self.frames = 0
 
-    def update(self, image, stamp_s, protect=None):
+    def update(self, image, stamp_s, protect=None, hold=None):
         """
         Return the warm mask of ``image`` (bool, the image's shape) and learn from it.
 
         ``protect``: pixels (bool mask) where a published person stands; warm ones there are
         not learned at all, so a person seated for longer than ``absorb_time_s`` stays
-        foreground. Pixels that are 0 (no data after rectification) or not finite are never
-        warm and never learned.
+        foreground. ``hold``: pixels not learned at all, warm or not (a published silhouette's:
+        most of its pixels are under the warm margin). Pixels that are 0 (no data after
+        rectification) or not finite are never warm and never learned.
         """
         image = np.asarray(image, dtype=np.float64)
         valid = np.isfinite(image) & (image > 0)
@@ -389,6 +391,8 @@ class WarmBackground:
         rate = np.where(warm, warm_rate, cool_rate) * valid
         if protect is not None and np.shape(protect) == image.shape:
             rate[warm & protect] = 0.0
+        if hold is not None and np.shape(hold) == image.shape:
+            rate[hold] = 0.0
         self.background = self.background + offset + rate * difference
         self.stamp_s = stamp_s
         return warm
@@ -976,12 +980,13 @@ SHAPE_MAX_STEP_PX = 8     # a shape's shift between consecutive left images sear
 SHAPE_MAX_DT_S = 0.3      # consecutive pairs (0.115 s at 8.7 Hz, one dropped)
 
 
-def _skew_shift_px(left, mask, motion, exclude):
+def _skew_shift_px(left, mask, motion, exclude, min_correlation):
     """
     Return how far a moving shape moved on in the image during the pair's skew, px (or NaN).
 
     ``motion`` is ``(previous_left, dt_s, skew_s)`` (``silhouette_detections``): the shape's
-    shift since the previous left image over ``dt_s``, times ``skew_s``.
+    shift since the previous left image over ``dt_s``, times ``skew_s``; NaN when that shift's
+    correlation is under ``min_correlation`` (the previous image does not show the shape).
     """
     if motion is None:
         return float('nan')
@@ -990,10 +995,14 @@ def _skew_shift_px(left, mask, motion, exclude):
             np.shape(previous) != np.shape(left):
         return float('nan')
     valid_previous = np.isfinite(previous) & (np.asarray(previous) > 0)
-    step, _ = silhouette_disparity(left, previous, mask, -SHAPE_MAX_STEP_PX, SHAPE_MAX_STEP_PX,
-                                   valid_right=valid_previous, exclude=exclude)
-    # silhouette_disparity finds s with previous[c - s] ~ left[c]: the shape moved by +s.
-    return step / dt_s * skew_s if math.isfinite(step) else float('nan')
+    step, correlation = silhouette_disparity(left, previous, mask, -SHAPE_MAX_STEP_PX,
+                                             SHAPE_MAX_STEP_PX, valid_right=valid_previous,
+                                             exclude=exclude)
+    # silhouette_disparity finds s with previous[c - s] ~ left[c]: the shape moved by +s. A
+    # shape the previous image does not show (an old or blank one) is not corrected.
+    if not (math.isfinite(step) and correlation >= min_correlation):
+        return float('nan')
+    return step / dt_s * skew_s
 
 
 def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, valid_right,
@@ -1104,7 +1113,7 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
                           2 * config.person_radius_m, valid_right, exclude):
             counts['silhouette_two_depths'] += 1
             continue
-        moved = _skew_shift_px(left, mask, motion, exclude)
+        moved = _skew_shift_px(left, mask, motion, exclude, config.silhouette_min_correlation)
         counts['silhouette_skew_corrected' if math.isfinite(moved) else
                'silhouette_skew_not_corrected'] += 1
         if math.isfinite(moved):
@@ -1455,6 +1464,8 @@ class Track:
     corrected: tuple = None       # (state, covariance) after its last detection
     held_s: float = -math.inf     # last stamp it was held beside a neighbour (_hold_beside)
     points_seen_s: float = -math.inf  # last stamp of a detection of points (not a silhouette)
+    still_at: tuple = None        # where it has stood since still_since_s (within
+    still_since_s: float = -math.inf  # object_radius_m of it)
 
     def __post_init__(self):
         if self.start is None:
@@ -1596,6 +1607,10 @@ class PeopleTracker:
         track.place_times = (track.place_times + (stamp_s,))[-PLACES_KEPT:]
         if not detection.silhouette:
             track.points_seen_s = stamp_s
+        if track.still_at is None or math.hypot(detection.x - track.still_at[0],
+                                                detection.y - track.still_at[1]) > \
+                self.config.object_radius_m:
+            track.still_at, track.still_since_s = (detection.x, detection.y), stamp_s
         track.depth_spread_m = detection.depth_spread_m
         track.confidence = detection.confidence
         track.points = detection.points
@@ -1644,24 +1659,20 @@ class PeopleTracker:
 
     def _shape_lapsed(self, track, stamp_s):
         """
-        Whether a published track has stood on silhouettes alone for longer than the lapse.
+        Whether a published track has stood still on silhouettes alone for the lapse.
 
-        Detected now; no detection of points for more than ``legs_lapse_s`` (its start
-        counts as one); its last ``PLACES_KEPT`` detections within ``object_radius_m`` of
-        their middle (standing still). A published person missed in the pair a warm screen's
-        silhouette shows beside them (a screen with no texture: no points of its own) takes
-        it and stays there; withdrawn, it must walk ``min_travel_m`` anew (from where it is)
-        or show its legs or head to be published again. A far person standing still without a
-        point for that long is withdrawn too (published again when it walks off).
+        Detected now, on a silhouette; for more than ``legs_lapse_s`` no detection of points
+        (its start counts as one) and every detection within ``object_radius_m`` of where it
+        stood at the lapse's start (``still_at``: a walker leaves it). A published person
+        missed in the pair a warm screen's silhouette shows beside them (a screen with no
+        texture: no points of its own) takes it and stays there; withdrawn, it must walk
+        ``min_travel_m`` anew (from where it is) or show its legs or head to be published
+        again. A far person standing still without a point for that long is withdrawn too
+        (published again when it walks off).
         """
-        if not (self.config.legs_lapse_s > 0 and track.confirmed and track.updated and
-                track.detection is not None and track.detection.silhouette and
-                len(track.places) >= PLACES_KEPT):
-            return False
-        places = np.asarray(track.places)
-        middle = places.mean(axis=0)
-        return stamp_s - track.points_seen_s > self.config.legs_lapse_s and \
-            bool((np.hypot(*(places - middle).T) <= self.config.object_radius_m).all())
+        return self.config.legs_lapse_s > 0 and track.confirmed and track.updated and \
+            track.detection is not None and track.detection.silhouette and \
+            stamp_s - max(track.points_seen_s, track.still_since_s) > self.config.legs_lapse_s
 
     def predicted_xy(self, stamp_s):
         """Return each track's floor position predicted to ``stamp_s`` (no state change)."""
@@ -1801,7 +1812,6 @@ class PeopleTracker:
             self.tracks = []
             self.object_memory = []
         dt = 0.0 if self.stamp_s is None or stamp_s < self.stamp_s else stamp_s - self.stamp_s
-        previous_s = self.stamp_s
         self.stamp_s = stamp_s
         self._predict(dt)
         assigned, beside = set(), []
@@ -1831,13 +1841,6 @@ class PeopleTracker:
                             for i in free])[None, :]
             distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
                                 distance)
-            # A silhouette (no points of its own) only continues a track seen in the previous
-            # pair: a published person missed for a pair beside a warm screen's silhouette
-            # would take it and stay there.
-            unseen = np.array([previous_s is None or t.last_seen_s < previous_s
-                               for t in group])[:, None]
-            shape = np.array([detections[i].silhouette for i in free])[None, :]
-            distance = np.where(shape & unseen, np.inf, distance)
             if group[0].confirmed:
                 # Where a warm object has been, nearer than the track's prediction: the
                 # object's, not a passing published track's (it coasts instead).
@@ -1878,6 +1881,8 @@ class PeopleTracker:
                                      detection=detection,
                                      legs_recent=(detection.legs_seen,),
                                      points_seen_s=stamp_s,
+                                     still_at=(detection.x, detection.y),
+                                     still_since_s=stamp_s,
                                      places=((detection.x, detection.y),),
                                      place_times=(stamp_s,),
                                      whole_heights=whole_heights, bounds=bounds))
@@ -1969,6 +1974,7 @@ class PeopleEstimator:
         self.background = WarmBackground(self.config)
         self.tracker = PeopleTracker(self.config)
         self.protect = None
+        self.hold = None
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
                        'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0,
                        'cut_legs_checked': 0, 'cut_legs_seen': 0, 'cut_legs_out_of_image': 0,
@@ -2016,7 +2022,7 @@ class PeopleEstimator:
         keep = np.ones(len(points), dtype=bool)
         warm = None
         if left_image is not None:
-            warm = self.background.update(left_image, stamp_s, self.protect)
+            warm = self.background.update(left_image, stamp_s, self.protect, self.hold)
             if self.config.require_warm:
                 keep = warm_points(warm, x_left, y)
                 self.counts['points_not_warm'] += int((~keep).sum())
@@ -2066,6 +2072,7 @@ class PeopleEstimator:
         tracks = self.tracker.update(detections, stamp_s,
                                      None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
+        self.hold = self._shape_pixels(tracks, image_shape)
         if left_image is not None:
             self.previous_left = (stamp_s, np.asarray(left_image, dtype=np.float64))
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
@@ -2122,6 +2129,24 @@ class PeopleEstimator:
         return dataclasses.replace(detection, head_above=True)
 
     @staticmethod
+    def _shape_pixels(tracks, image_shape):
+        """
+        Pixels of the published tracks' silhouettes now (``WarmBackground.update``'s hold).
+
+        Most of a far body's silhouette is under the warm margin: learned with the cool time
+        constant, a far person standing still would fade within a minute.
+        """
+        if image_shape is None:
+            return None
+        mask = np.zeros(image_shape, dtype=bool)
+        for track in tracks:
+            if track.updated and track.detection is not None and \
+                    track.detection.shape_pixels is not None and \
+                    mask.size > track.detection.shape_pixels.max(initial=-1):
+                mask.flat[track.detection.shape_pixels] = True
+        return mask
+
+    @staticmethod
     def _people_pixels(tracks, used, x_left, y, image_shape):
         """Pixels (dilated by 2) of the points of the published tracks' detections now."""
         if image_shape is None:
@@ -2136,10 +2161,5 @@ class PeopleEstimator:
                 members = used[track.detection.members]
                 rows, cols, inside = pixel_indices(image_shape, x_left[members], y[members])
                 mask[rows[inside], cols[inside]] = True
-            # A silhouette's own pixels, most of them under the warm margin: learned with the
-            # cool time constant, a far person standing still would fade within a minute.
-            if track.updated and track.detection is not None and \
-                    track.detection.shape_pixels is not None and \
-                    mask.size > track.detection.shape_pixels.max(initial=-1):
-                mask.flat[track.detection.shape_pixels] = True
+
         return ndimage.binary_dilation(mask, iterations=2) if mask.any() else mask

@@ -67,7 +67,7 @@ def _split_columns(columns, runs, split):
     return sorted(groups, key=lambda group: int(group[0]))
 
 
-def top_silhouettes(weak, strong, min_rows=3, split=0.5, min_columns=3):
+def top_silhouettes(weak, strong, min_rows=3, split=0.5, min_columns=2):
     """
     Return the silhouettes rising out of the image's top edge, as bool masks.
 
@@ -75,9 +75,8 @@ def top_silhouettes(weak, strong, min_rows=3, split=0.5, min_columns=3):
     mask (higher margin). A silhouette is one group of columns (``_split_columns``) of an
     8-connected region of ``weak`` that holds a ``strong`` pixel, each column's pixels from
     row 0 down to its first cool one, where that run is at least ``min_rows`` long. A group
-    narrower than ``min_columns`` is left out: a sliver split off a wide warm thing (a
-    radiator cut into pieces by a person in front of it) matches anywhere; a body 4.3 m off
-    or farther is 4-6 columns wide at 80x60.
+    narrower than ``min_columns`` is left out: a one-column sliver split off a wide warm
+    thing (a radiator cut into pieces by a person in front of it) matches anywhere.
     """
     weak = np.asarray(weak, dtype=bool)
     strong = np.asarray(strong, dtype=bool) & weak
@@ -125,6 +124,7 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
         if ring_px > 0 else mask
     if exclude is not None:
         region &= mask | ~np.asarray(exclude, dtype=bool)
+    region &= np.isfinite(left)
     rows, cols = np.nonzero(region)
     low, high = int(np.floor(low)), int(np.ceil(high))
     if not len(rows) or high < low:
@@ -173,6 +173,8 @@ def _zncc_costs(values, rows, cols, right, shifts, valid_right):
         inside &= valid_right[row_at, first_at] & valid_right[row_at, second_at]
     b = (1.0 - weight) * right[row_at, first_at] + weight * right[row_at, second_at]
     a = np.broadcast_to(values[:, None], b.shape)
+    inside &= np.isfinite(b)
+    a, b = np.where(inside, a, 0.0), np.where(inside, b, 0.0)
     count = inside.sum(axis=0)
     usable = count >= MIN_INSIDE_FRACTION * len(rows)
     count = np.maximum(count, 1)
@@ -182,6 +184,17 @@ def _zncc_costs(values, rows, cols, right, shifts, valid_right):
     with np.errstate(invalid='ignore', divide='ignore'):
         costs = 1.0 - (a * b).sum(axis=0) / norm
     return np.where(usable & (norm > 0), costs, np.inf)
+
+
+def _shifted_left(mask, shift):
+    """Return ``mask`` moved ``shift`` columns to the left (right when negative), False in."""
+    moved = np.zeros_like(mask)
+    width = mask.shape[1]
+    if shift >= 0:
+        moved[:, :width - shift] = mask[:, shift:]
+    else:
+        moved[:, -shift:] = mask[:, :width + shift]
+    return moved
 
 
 def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1.0,
@@ -199,15 +212,11 @@ def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1
     """
     shift = int(round(disparity))
     mask = np.asarray(mask, dtype=bool)
-    moved = np.zeros_like(mask)
-    if shift >= mask.shape[1]:
+    if abs(shift) >= mask.shape[1]:
         return False
-    moved[:, :mask.shape[1] - shift] = mask[:, shift:]
+    moved = _shifted_left(mask, shift)
     if exclude is not None:
-        exclude = np.asarray(exclude, dtype=bool)
-        moved_exclude = np.zeros_like(exclude)
-        moved_exclude[:, :exclude.shape[1] - shift] = exclude[:, shift:]
-        exclude = moved_exclude[:, ::-1]
+        exclude = _shifted_left(np.asarray(exclude, dtype=bool), shift)[:, ::-1]
     # Mirror both images so a shift to the right becomes one to the left.
     back, _ = silhouette_disparity(np.asarray(right)[:, ::-1], np.asarray(left)[:, ::-1],
                                    moved[:, ::-1], low, high, ring_px,
