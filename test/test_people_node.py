@@ -359,3 +359,16 @@ def test_pairs_without_the_right_image_are_counted_and_a_bad_one_named(ros):
         status.message for status in msg.status if status.name == 'people: people'), 10)
     spin_until(executor, lambda: messages, 5.0)
     assert messages[-1].startswith('no silhouettes: right/image_rect: 79x60')
+
+
+def test_right_images_that_never_come_are_a_warning(ros):
+    executor, collector, node = connected_people_node(ros)
+    node._on_right_info(camera_info_from_calibration(RIG.calibrations()[1], Header()))
+    messages = []
+    collector.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: messages.extend(
+        status.message for status in msg.status if status.name == 'people: people'), 10)
+    for sec in range(1, 4):
+        feed(node, *pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec)))
+    assert node.counts['pairs_without_right_image'] == 3
+    spin_until(executor, lambda: messages, 5.0)
+    assert messages[-1].startswith('no right/image_rect with the stamps of points2')

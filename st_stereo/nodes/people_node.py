@@ -323,6 +323,10 @@ class PeopleNode(Node):
                 self.right_projection is None:
             level, message = diagnostics.WARN, 'no right/camera_info: far bodies starved of ' \
                 'matches are not placed by their silhouettes'
+        elif self.use_right and self.counts['published'] and \
+                self.counts['pairs_without_right_image'] >= self.counts['published']:
+            level, message = diagnostics.WARN, 'no right/image_rect with the stamps of ' \
+                'points2: far bodies starved of matches are not placed by their silhouettes'
         status = diagnostics.status(f'{self.get_name()}: people', 'st_stereo', level, message,
                                     values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
