@@ -47,8 +47,8 @@ from scipy.optimize import linear_sum_assignment
 
 from st_stereo.core.config import parse_bool
 from st_stereo.core.rig_pose import rig_to_optical_rotation, rotation_z
-from st_stereo.core.silhouette_stereo import right_to_left_agrees, silhouette_disparity, \
-    top_silhouettes
+from st_stereo.core.silhouette_stereo import EIGHT_CONNECTED, right_to_left_agrees, \
+    silhouette_disparity, top_silhouettes
 
 
 def _field(default, description):
@@ -1091,7 +1091,7 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     out = []
     for mask in top_silhouettes(weak, warm, TOP_SILHOUETTE_MIN_ROWS, TOP_SILHOUETTE_SPLIT):
         counts['silhouettes'] += 1
-        region = ndimage.binary_dilation(mask, structure=np.ones((3, 3), dtype=bool))
+        region = ndimage.binary_dilation(mask, structure=EIGHT_CONNECTED)
         held = inside & region[point_rows, point_cols]
         if any(d.members is not None and held[np.asarray(d.members, dtype=int)].any()
                for d in detections):
@@ -2073,7 +2073,7 @@ class PeopleEstimator:
                                      None if warm is None else self._warm_support(world[keep]))
         self.protect = self._people_pixels(tracks, used, x_left, y, image_shape)
         self.hold = self._shape_pixels(tracks, image_shape)
-        if left_image is not None:
+        if left_image is not None and self.config.silhouette_margin_counts > 0:
             self.previous_left = (stamp_s, np.asarray(left_image, dtype=np.float64))
         return PeopleFrame(tracks, detections, list(self.tracker.ended), int(keep.sum()))
 

@@ -66,6 +66,11 @@ class FrequencyTracker:
         return OK, 'Desired frequency met', values
 
 
+def key_values(msg):
+    """Return every KeyValue of a DiagnosticArray's statuses as one dict (``pair_info``)."""
+    return {item.key: item.value for status in msg.status for item in status.values}
+
+
 def status(name, hardware_id, level, message, values):
     """Build a DiagnosticStatus from a dict of values (rendered as strings)."""
     out = DiagnosticStatus()

@@ -38,7 +38,7 @@ from st_stereo.nodes.parameters import declare_node_parameters, declare_st_param
     validate_changes
 from st_stereo.nodes.runtime import LatestSlot, RELIABLE, spin_node, \
     with_default_namespace
-from st_stereo.nodes.sync import subscribe_exact
+from st_stereo.nodes.sync import stamp_key, subscribe_exact
 from stereo_msgs.msg import DisparityImage
 
 
@@ -64,10 +64,6 @@ def _pair_images(left_msg, right_msg, left_info, right_info):
             raise ValueError(f'{side} image is {image.shape[1]}x{image.shape[0]} but its '
                              f'camera_info says {info.width}x{info.height}')
     return left, right
-
-
-def _stamp_key(msg):
-    return (msg.header.stamp.sec, msg.header.stamp.nanosec)
 
 
 class MatcherNode(Node):
@@ -199,7 +195,7 @@ class MatcherNode(Node):
         return result
 
     def _on_pair_info(self, msg):
-        values = {item.key: item.value for status in msg.status for item in status.values}
+        values = diagnostics.key_values(msg)
         try:
             left_time, skew = pair_times_from_values(values)
         except ValueError as error:
@@ -207,13 +203,13 @@ class MatcherNode(Node):
             self.counts['pair_info_unreadable'] += 1
             self.last_pair_info_problem = str(error)
             return
-        stamp = _stamp_key(msg)
+        stamp = stamp_key(msg)
         with self._pair_times_lock:
             self.pair_times[stamp] = (left_time, skew, pair_ffc_from_values(values))
             while len(self.pair_times) > 64:
                 self.pair_times.pop(next(iter(self.pair_times)))
         self.pair_info_seen = True
-        if self._waiting is not None and _stamp_key(self._waiting[1][0]) == stamp:
+        if self._waiting is not None and stamp_key(self._waiting[1][0]) == stamp:
             self._release_waiting()
 
     def _release_waiting(self):
@@ -232,7 +228,7 @@ class MatcherNode(Node):
         # header stamp is the pair's midpoint) nor FFC flags: nothing is corrected, and the
         # next pair has no usable previous time either.
         with self._pair_times_lock:
-            return self.pair_times.pop(_stamp_key(msg), (None, None, (False, False)))
+            return self.pair_times.pop(stamp_key(msg), (None, None, (False, False)))
 
     def _keep_skipped_for_skew(self, left_msg, right_msg, left_info, right_info, _arrival):
         """
@@ -289,7 +285,7 @@ class MatcherNode(Node):
         messages = (left_msg, right_msg, left_info, right_info, time.monotonic())
         self._release_waiting()           # an older pair goes first, with what it has
         with self._pair_times_lock:
-            known = _stamp_key(left_msg) in self.pair_times
+            known = stamp_key(left_msg) in self.pair_times
         if self.config.skew_compensation and self.pair_info_seen and not known:
             self.counts['waited_for_pair_info'] += 1
             self._waiting = (time.monotonic(), messages)

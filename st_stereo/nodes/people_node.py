@@ -43,6 +43,7 @@ from st_stereo.nodes import conversions, diagnostics, people_messages
 from st_stereo.nodes.node_parameters import people_config_parameters, PEOPLE_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
+from st_stereo.nodes.sync import stamp_key
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
@@ -163,7 +164,7 @@ class PeopleNode(Node):
         return world_from_rectified(self.pose, r1)
 
     def _on_pair_info(self, msg):
-        values = {item.key: item.value for status in msg.status for item in status.values}
+        values = diagnostics.key_values(msg)
         try:
             _, skew = pair_times_from_values(values)
         except ValueError as error:
@@ -171,7 +172,7 @@ class PeopleNode(Node):
             self.get_logger().warning(f'{error}: that pair is not corrected for the skew',
                                       throttle_duration_sec=5.0)
             return
-        self.skews[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = skew
+        self.skews[stamp_key(msg)] = skew
         while len(self.skews) > IMAGES_KEPT:
             self.skews.popitem(last=False)
 
@@ -187,7 +188,7 @@ class PeopleNode(Node):
 
     @staticmethod
     def _keep(images, msg, counts, dropped):
-        images[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg
+        images[stamp_key(msg)] = msg
         while len(images) > IMAGES_KEPT:
             images.popitem(last=False)
             counts[dropped] += 1
@@ -199,7 +200,7 @@ class PeopleNode(Node):
         self._keep(self.right_images, msg, self.counts, 'right_images_without_points')
 
     def _on_points(self, points_msg):
-        key = (points_msg.header.stamp.sec, points_msg.header.stamp.nanosec)
+        key = stamp_key(points_msg)
         image_msg = self.images.pop(key, None)
         right_msg = self.right_images.pop(key, None)
         skew = self.skews.pop(key, None)
