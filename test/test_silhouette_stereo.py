@@ -256,3 +256,103 @@ def test_a_far_walker_s_silhouettes_are_corrected_for_the_cameras_skew():
     assert estimators[False].counts['silhouette_skew_corrected'] == 0
     assert np.mean(errors[False]) > 0.3                   # too far, as measured
     assert abs(np.mean(errors[True])) < 0.15
+
+
+def _real_bodies(thermal_dir, contrast):
+    """
+    people_lab (real, ../shared) cropped below the heads and scaled: bodies over a wall.
+
+    Rows 45-179 resized to 80x60, so that the bodies rise out of the top edge; the frame
+    scaled so that its 95th percentile lies ``contrast`` counts above its 20th (the wall,
+    at 8000 counts). Returns the frame and its bodies' pixels.
+    """
+    from st_stereo.core.image_io import read_thermal_image, resize_area
+    frame = read_thermal_image(thermal_dir / 'people_lab_180x180.png')
+    frame = resize_area(np.asarray(frame, dtype=np.float64)[45:180, :], 80, 60)
+    wall = np.percentile(frame, 20)
+    span = np.percentile(frame, 95) - wall
+    return 8000.0 + (frame - wall) * contrast / span, frame - wall > 0.25 * span
+
+
+def _real_silhouettes(left, config):
+    weak = left - 8000.0 > config.silhouette_margin_counts
+    return weak, top_silhouettes(weak, left - 8000.0 > config.warm_margin_counts)
+
+
+@pytest.mark.parametrize('front, back', [(8.0, 4.2), (10.7, 6.5), (12.3, 4.2)])
+def test_real_bodies_in_front_of_a_farther_wall_get_their_own_disparity(
+        thermal_dir, front, back):
+    # A real frame's people (FLIR i60), moved by their own disparity in front of the rest
+    # moved by a smaller one, 110 counts over the wall (a warm room's far bodies): every
+    # silhouette of 4 or more columns the right image holds gets the bodies' disparity, not
+    # the wall's, and comes home (docs/experiments/silhouettes_on_a_real_frame.py).
+    from st_stereo.tools.eval_subpixel import make_layered_pair
+    config = PeopleConfig()
+    frame, bodies = _real_bodies(thermal_dir, 110.0)
+    left, right = make_layered_pair(frame, bodies, front, back, np.random.default_rng(0))
+    weak, shapes = _real_silhouettes(left, config)
+    checked = 0
+    for mask in shapes:
+        columns = np.flatnonzero(mask.any(axis=0))
+        if len(columns) < 4 or columns.min() - front < 2:
+            continue                 # a sliver; or beyond the right image's left side
+        found, correlation = silhouette_disparity(left, right, mask, 2, 30, exclude=weak)
+        assert correlation >= config.silhouette_min_correlation
+        assert found == pytest.approx(front, abs=0.15)
+        assert right_to_left_agrees(left, right, mask, found, 2, 30, exclude=weak)
+        checked += 1
+    assert checked >= 3
+
+
+def test_a_real_body_cut_by_the_image_s_right_side_comes_home(thermal_dir):
+    # The same scene with the image ending inside the rightmost body: in the right image the
+    # body shows further; searched back whole, its shifts past the true one leave the left
+    # image and the search never confirmed its best (the check failed every such shape).
+    # Its columns that both images see come home.
+    from st_stereo.tools.eval_subpixel import make_layered_pair
+    config = PeopleConfig()
+    frame, bodies = _real_bodies(thermal_dir, 110.0)
+    left, right = make_layered_pair(frame, bodies, 9.4, 4.2, np.random.default_rng(0))
+    left, right = left[:, :70], right[:, :70]
+    weak, shapes = _real_silhouettes(left, config)
+    cut = [mask for mask in shapes if mask[:, -1].any() and mask.any(axis=0).sum() >= 4]
+    assert len(cut) == 1
+    found, _ = silhouette_disparity(left, right, cut[0], 2, 30, exclude=weak)
+    assert found == pytest.approx(9.4, abs=0.15)
+    assert right_to_left_agrees(left, right, cut[0], found, 2, 30, exclude=weak)
+
+
+def test_a_far_person_cut_by_the_image_s_right_side_is_placed_with_its_width_unknown():
+    # Standing 4.6 m off at the view's right side (the image ends inside the body): placed
+    # by its silhouette, which now comes home, with the uncertainty across the view of a
+    # body whose middle may lie beyond the side.
+    look = sim_people.PersonLook(height_m=1.75, seed=11)
+    spec = sequences.SequenceSpec(
+        'side_person_test', 'one far person cut by the right side',
+        (sequences.PersonScript((sequences.Keyframe(0.0, 1.85, 4.6),
+                                 sequences.Keyframe(9.0, 1.85, 4.6)), look,
+                                heading_rad=math.pi),),
+        duration_s=8 / 8.7, rig=sequences.realistic_rig(), room='meeting_room',
+        right_phase_s=0.0)
+    renderer = sequences.SequenceRenderer(spec)
+    calibrations = spec.rig.calibrations()
+    rectifier = StereoRectifier(*calibrations)
+    model = rectifier.model
+    estimator = PeopleEstimator(world_from_rectified(spec.rig.rig_pose(),
+                                                     calibrations[0].rectification))
+    placed = []
+    for t_left, t_right in spec.pair_times():
+        frame = renderer.frame(t_left, right_t=t_right)
+        left, right = rectifier.rectify(frame['left'], frame['right'])
+        assert (frame['truth'].labels[:, -1] >= sequences.PERSON_LABEL_BASE).any()
+        found = estimator.process(t_left, np.empty((0, 3)), np.empty(0), np.empty(0),
+                                  left_image=left,
+                                  intrinsics=(model.fx, model.fy, model.cx, model.cy),
+                                  right_image=right,
+                                  stereo=(model.fx * model.baseline,
+                                          model.disparity_offset)).detections
+        placed += [d for d in found if math.hypot(d.x - 1.85, d.y - 4.6) < 0.3]
+    assert len(placed) >= 6                                  # of 8 pairs
+    assert estimator.counts['silhouette_detections_at_side'] >= len(placed)
+    for detection in placed:
+        assert np.sqrt(np.linalg.eigvalsh(detection.covariance).max()) >= 0.3

@@ -1054,7 +1054,10 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     bound, ``top_edge_height_m``), without legs, ``silhouette`` True; its points are those
     on its pixels, its confidence the correlation, its covariance the depth's
     (``sigma_Z = Z sigma_d / d``, ``disparity_sigma_px``) along the viewing direction and a
-    quarter of its width across it.
+    quarter of its width across it; a shape at the image's side or beside pixels without
+    data (``valid_left``), whose body may go on beyond them (its middle up to half a body
+    off), half of ``TOP_SILHOUETTE_MAX_WIDTH_M`` across (counted:
+    ``silhouette_detections_at_side``).
 
     ``motion``: ``(previous_left, dt_s, skew_s)``, the previous pair's rectified left image,
     the time since it and this pair's skew (right acquisition less left, s). The right
@@ -1068,15 +1071,15 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
 
     ``counts`` (a dict) gains ``silhouettes``, ``silhouette_covered``,
     ``silhouette_no_disparity``, ``silhouette_not_back``, ``silhouette_two_depths``,
-    ``silhouette_not_body``, ``silhouette_detections``, ``silhouette_skew_corrected`` and
-    ``silhouette_skew_not_corrected``.
+    ``silhouette_not_body``, ``silhouette_detections``, ``silhouette_detections_at_side``,
+    ``silhouette_skew_corrected`` and ``silhouette_skew_not_corrected``.
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('silhouettes', 'silhouette_covered', 'silhouette_no_disparity',
                 'silhouette_not_back', 'silhouette_two_depths', 'silhouette_not_body',
-                'silhouette_detections', 'silhouette_skew_corrected',
-                'silhouette_skew_not_corrected'):
+                'silhouette_detections', 'silhouette_detections_at_side',
+                'silhouette_skew_corrected', 'silhouette_skew_not_corrected'):
         counts.setdefault(key, 0)
     fx, fy, cx, cy = intrinsics
     fx_baseline, disparity_offset = stereo
@@ -1140,9 +1143,12 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
         sigma = depth * config.disparity_sigma_px / (disparity - disparity_offset) * \
             math.hypot(ray[0], ray[1]) / float(np.linalg.norm(ray))
         half_width = 0.5 * (cols.max() - cols.min() + 1) * depth / fx
+        at_side = bool(region[:, 0].any() or region[:, -1].any() or
+                       (valid_left is not None and (region & ~valid_left).any()))
+        sigma_across = 0.5 * TOP_SILHOUETTE_MAX_WIDTH_M if at_side else 0.5 * half_width
         across = np.array([-away[1], away[0]])
         covariance = sigma ** 2 * np.outer(away, away) + \
-            (0.5 * half_width) ** 2 * np.outer(across, across)
+            sigma_across ** 2 * np.outer(across, across)
         head = top_edge_height_m(xy, transform, intrinsics)
         members = np.flatnonzero(held)
         out.append(Detection(float(xy[0]), float(xy[1]),
@@ -1152,6 +1158,7 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
                              members=members, silhouette=True,
                              shape_pixels=np.flatnonzero(mask)))
         counts['silhouette_detections'] += 1
+        counts['silhouette_detections_at_side'] += int(at_side)
     return out
 
 
@@ -1989,6 +1996,7 @@ class PeopleEstimator:
                        'silhouette_two_depths': 0,
                        'silhouette_not_body': 0,
                        'silhouette_detections': 0, 'silhouette_pairs_not_checked': 0,
+                       'silhouette_detections_at_side': 0,
                        'silhouette_skew_corrected': 0, 'silhouette_skew_not_corrected': 0}
         self.previous_left = None       # (stamp, the last pair's left image) for the skew
 

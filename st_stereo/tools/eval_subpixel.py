@@ -96,6 +96,37 @@ def make_shifted_pair(frame, shift, rng, noise_counts=0.0, realistic=False):
     return left, right
 
 
+def make_layered_pair(frame, front, front_shift, back_shift, rng, noise_counts=3.0,
+                      gain_right=1.03, offset_right=37.0):
+    """
+    Left = frame, right = its ``front`` pixels moved by ``front_shift``, the rest by another.
+
+    Two depths from one real frame: the ``front`` pixels (bool mask: the warm bodies) move
+    left by ``front_shift`` and occlude the background, which moves by ``back_shift``; the
+    background the bodies hid in the left image (shown beside them in the right one) is
+    filled, row by row, by linear interpolation between the background pixels either side.
+    Both images get independent Gaussian noise of ``noise_counts``; the right one the other
+    camera's gain and offset. Returns ``(left, right)`` float64.
+    """
+    frame = np.asarray(frame, dtype=np.float64)
+    front = np.asarray(front, dtype=bool)
+    if front.shape != frame.shape:
+        raise ValueError(f'front: expected the frame shape {frame.shape}, got {front.shape}')
+    background = frame.copy()
+    columns = np.arange(frame.shape[1])
+    for row in range(frame.shape[0]):
+        hidden = front[row]
+        if hidden.any() and not hidden.all():
+            background[row, hidden] = np.interp(columns[hidden], columns[~hidden],
+                                                frame[row, ~hidden])
+    moved_front = fourier_shift_image_x(front.astype(np.float64), front_shift) > 0.5
+    right = np.where(moved_front, fourier_shift_image_x(frame, front_shift),
+                     fourier_shift_image_x(background, back_shift))
+    right = gain_right * right + offset_right + rng.normal(0.0, noise_counts, frame.shape)
+    left = frame + rng.normal(0.0, noise_counts, frame.shape)
+    return left, right
+
+
 def evaluable_features(moments, gamma, window, shift):
     """Left features whose true right match lies in the frame with its whole window."""
     half = window // 2
