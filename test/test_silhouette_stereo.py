@@ -16,6 +16,7 @@ from st_stereo.core.silhouette_stereo import (right_to_left_agrees, silhouette_d
                                               top_runs, top_silhouettes)
 from st_stereo.sim import people as sim_people
 from st_stereo.sim import sequences
+from st_stereo.tools.eval_subpixel import layered_bodies_pair
 
 SHAPE = (60, 80)
 
@@ -304,11 +305,12 @@ def test_real_bodies_in_front_of_a_farther_wall_get_their_own_disparity(
     assert checked >= 3
 
 
-def test_a_real_body_cut_by_the_image_s_right_side_comes_home(thermal_dir):
-    # The same scene with the image ending inside the rightmost body: in the right image the
-    # body shows further; searched back whole, its shifts past the true one leave the left
-    # image and the search never confirmed its best (the check failed every such shape).
-    # Its columns that both images see come home.
+def test_a_real_body_cut_by_the_image_s_right_side_is_not_confirmed(thermal_dir):
+    # The same scene with the image ending inside the rightmost body: its disparity is found,
+    # but the search back cannot confirm it (its shifts past the true one leave the left
+    # image), and a body the left camera does not see may hide it in the right image
+    # (test_a_far_sliver_at_the_right_side_hidden_by_a_body_the_left_image_misses_...): the
+    # shape is not kept.
     from st_stereo.tools.eval_subpixel import make_layered_pair
     config = PeopleConfig()
     frame, bodies = _real_bodies(thermal_dir, 110.0)
@@ -319,13 +321,12 @@ def test_a_real_body_cut_by_the_image_s_right_side_comes_home(thermal_dir):
     assert len(cut) == 1
     found, _ = silhouette_disparity(left, right, cut[0], 2, 30, exclude=weak)
     assert found == pytest.approx(9.4, abs=0.15)
-    assert right_to_left_agrees(left, right, cut[0], found, 2, 30, exclude=weak)
+    assert not right_to_left_agrees(left, right, cut[0], found, 2, 30, exclude=weak)
 
 
-def test_a_far_person_cut_by_the_image_s_right_side_is_placed_with_its_width_unknown():
-    # Standing 4.6 m off at the view's right side (the image ends inside the body): placed
-    # by its silhouette, which now comes home, with the uncertainty across the view of a
-    # body whose middle may lie beyond the side.
+def test_a_far_person_cut_by_the_image_s_right_side_is_not_placed_but_counted():
+    # Standing 4.6 m off at the view's right side (the image ends inside the body): the
+    # search back refuses its silhouette pair after pair, and says so in the counters.
     look = sim_people.PersonLook(height_m=1.75, seed=11)
     spec = sequences.SequenceSpec(
         'side_person_test', 'one far person cut by the right side',
@@ -351,8 +352,25 @@ def test_a_far_person_cut_by_the_image_s_right_side_is_placed_with_its_width_unk
                                   right_image=right,
                                   stereo=(model.fx * model.baseline,
                                           model.disparity_offset)).detections
-        placed += [d for d in found if math.hypot(d.x - 1.85, d.y - 4.6) < 0.3]
-    assert len(placed) >= 6                                  # of 8 pairs
-    assert estimator.counts['silhouette_detections_at_side'] >= len(placed)
-    for detection in placed:
-        assert np.sqrt(np.linalg.eigvalsh(detection.covariance).max()) >= 0.3
+        placed += [d for d in found if math.hypot(d.x - 1.85, d.y - 4.6) < 0.5]
+    assert len(placed) <= 1
+    assert estimator.counts['silhouette_not_back'] >= 6                  # of 8 pairs
+
+
+@pytest.mark.parametrize('near, far', [(14.0, 9.0), (16.0, 10.0)])
+@pytest.mark.parametrize('columns, near_counts', [(3, 120.0), (8, 300.0)])
+def test_a_far_sliver_at_the_right_side_hidden_by_a_body_the_left_image_misses_is_refused(
+        near, far, columns, near_counts):
+    # A far body's last columns at the image's right side; in the right image a nearer body
+    # standing just beyond the left camera's view hides them. The whole-shape search finds
+    # the near body's edge (ZNCC ignores its contrast); the left image does not show that
+    # body, and a search back on the columns both images see confirms the wrong disparity
+    # (tried, docs/people.md, step 4): a shape whose search back leaves the left image is
+    # not confirmed (docs/experiments/silhouettes_at_the_side.py).
+    left, right = layered_bodies_pair([(80 - columns, 89 - columns, 20, 120.0, far),
+                                       (80, 95, 40, near_counts, near)], far - 5.0)
+    sliver = np.zeros(SHAPE, dtype=bool)
+    sliver[:20, 80 - columns:] = True
+    found, correlation = silhouette_disparity(left, right, sliver, 3, 46, exclude=sliver)
+    assert correlation >= 0.5 and abs(found - far) > 1.0     # the wrong one
+    assert not right_to_left_agrees(left, right, sliver, found, 3, 46, exclude=sliver)

@@ -973,6 +973,7 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
 TOP_SILHOUETTE_MIN_ROWS = 3       # rows from the top edge down (a head's tip is not a body)
 TOP_SILHOUETTE_SPLIT = 0.5        # a column running under half the tallest: another thing
 TOP_SILHOUETTE_MAX_WIDTH_M = 0.7  # shoulders (0.5 m), a pixel of blur each side, arms
+SHOULDERS_M = 0.5                 # a body's width across the shoulders
 SILHOUETTE_NEAREST_M = 1.0        # the disparity searched: from max_range_m to this depth
 
 
@@ -1053,10 +1054,13 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     (``cut_top``, head not visible: its head height is the top edge's height there, a lower
     bound, ``top_edge_height_m``), without legs, ``silhouette`` True; its points are those
     on its pixels, its confidence the correlation, its covariance the depth's
-    (``sigma_Z = Z sigma_d / d``, ``disparity_sigma_px``) along the viewing direction and a
-    quarter of its width across it; a shape at the image's side or beside pixels without
-    data (``valid_left``), whose body may go on beyond them (its middle up to half a body
-    off), half of ``TOP_SILHOUETTE_MAX_WIDTH_M`` across (counted:
+    (``sigma_Z = Z sigma_d / d``, ``disparity_sigma_px``, and ``cut_body_offset_m``, the
+    guess of how far the body's middle lies behind its silhouette, in quadrature) along the
+    viewing direction; across it, a quarter of its width, or, for a shape narrower than
+    shoulders (``SHOULDERS_M``: a fragment of a body, its middle up to the difference's half
+    off), half of what it lacks of them; a shape at the image's side or beside pixels
+    without data (``valid_left``), whose body may go on beyond them, half of
+    ``TOP_SILHOUETTE_MAX_WIDTH_M`` (such detections are counted, among the others, as
     ``silhouette_detections_at_side``).
 
     ``motion``: ``(previous_left, dt_s, skew_s)``, the previous pair's rectified left image,
@@ -1145,9 +1149,11 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
         half_width = 0.5 * (cols.max() - cols.min() + 1) * depth / fx
         at_side = bool(region[:, 0].any() or region[:, -1].any() or
                        (valid_left is not None and (region & ~valid_left).any()))
-        sigma_across = 0.5 * TOP_SILHOUETTE_MAX_WIDTH_M if at_side else 0.5 * half_width
+        sigma_across = 0.5 * TOP_SILHOUETTE_MAX_WIDTH_M if at_side else \
+            max(0.5 * half_width, SHOULDERS_M / 2 - half_width)
+        sigma_along = math.hypot(sigma, config.cut_body_offset_m)
         across = np.array([-away[1], away[0]])
-        covariance = sigma ** 2 * np.outer(away, away) + \
+        covariance = sigma_along ** 2 * np.outer(away, away) + \
             sigma_across ** 2 * np.outer(across, across)
         head = top_edge_height_m(xy, transform, intrinsics)
         members = np.flatnonzero(held)

@@ -30,7 +30,6 @@ from scipy import ndimage
 EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 MIN_INSIDE_FRACTION = 0.8   # of the silhouette's pixels (with ring) inside the right image
 REFINE_STEP_PX = 0.1        # the fractional shifts tried around the best integer one
-BACK_REACH_PX = 2           # shifts beyond the disparity the search back must see whole
 
 
 def top_runs(mask):
@@ -102,7 +101,7 @@ def top_silhouettes(weak, strong, min_rows=3, split=0.5, min_columns=2):
 
 
 def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=None,
-                         exclude=None, reach_px=None):
+                         exclude=None):
     """
     Disparity of a silhouette: ``(disparity, correlation)``, or ``(nan, nan)``.
 
@@ -114,11 +113,9 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     best one is refined on shifts ``REFINE_STEP_PX`` apart within half a pixel of it and by
     the parabola through the finest best's neighbours' ``1 - ZNCC``. The ring leaves out the
     pixels of ``exclude`` (bool, the left image's shape): another warm thing beside the
-    silhouette, at its own depth, would decide the correlation. ``reach_px``: the pixels
-    (ring included) that, moved this many columns to the left, leave the right image or
-    land on a pixel without data are not used. ``correlation`` is the best ZNCC (-1..1).
-    NaN when no shift is usable, the best lies on a bound or next to a shift not usable
-    (the true one may lie beyond) or the region is flat.
+    silhouette, at its own depth, would decide the correlation. ``correlation`` is the best
+    ZNCC (-1..1). NaN when no shift is usable, the best lies on a bound (the true one may lie
+    beyond) or the region is flat.
     """
     left = np.asarray(left, dtype=np.float64)
     right = np.asarray(right, dtype=np.float64)
@@ -129,12 +126,6 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
         region &= mask | ~np.asarray(exclude, dtype=bool)
     region &= np.isfinite(left)
     rows, cols = np.nonzero(region)
-    if reach_px is not None:
-        landing = cols - int(reach_px)
-        seen = (landing >= 0) & (landing < right.shape[1])
-        if valid_right is not None:
-            seen[seen] = valid_right[rows[seen], landing[seen]]
-        rows, cols = rows[seen], cols[seen]
     low, high = int(np.floor(low)), int(np.ceil(high))
     if not len(rows) or high < low:
         return float('nan'), float('nan')
@@ -218,13 +209,6 @@ def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1
     beside a nearer body is hidden by it in the right image (the nearer one shifts more): its
     pixels there are the nearer body's, whose disparity the search back finds. False when the
     search back finds none. ``exclude`` (left image) is shifted with the mask.
-
-    Searched back, the shape uses only its pixels (ring included) that land inside the left
-    image, on pixels with data, ``BACK_REACH_PX`` beyond the shift: a shape cut by the image's
-    right side (or its invalid border) is seen further in the right image, and whole, its
-    shifts past the true one would leave the left image, the best shift then lying next to
-    unusable ones (never confirmed). The part both images see comes home. Elsewhere every
-    pixel stays and nothing changes.
     """
     shift = int(round(disparity))
     mask = np.asarray(mask, dtype=bool)
@@ -237,5 +221,5 @@ def right_to_left_agrees(left, right, mask, disparity, low, high, tolerance_px=1
     back, _ = silhouette_disparity(np.asarray(right)[:, ::-1], np.asarray(left)[:, ::-1],
                                    moved[:, ::-1], low, high, ring_px,
                                    None if valid_left is None else valid_left[:, ::-1],
-                                   exclude, reach_px=shift + BACK_REACH_PX)
+                                   exclude)
     return bool(abs(back - disparity) <= tolerance_px)

@@ -127,6 +127,43 @@ def make_layered_pair(frame, front, front_shift, back_shift, rng, noise_counts=3
     return left, right
 
 
+def layered_bodies_pair(bodies, wall_disparity, seed=0, shape=(60, 80), margin=40):
+    """
+    Left and right images of textured bodies over a textured wall, some beyond the left image.
+
+    ``bodies``: ``(first column, last column + 1, rows from the top, counts over the wall,
+    disparity)`` in the left image's columns, which may lie outside it (up to ``margin``).
+    The right image at column ``x`` shows, of the bodies covering world column ``x + d``, the
+    one of largest ``d`` (the nearest), else the wall at ``x + wall_disparity``: a body the
+    left camera does not see can show in the right image. The right camera's gain (1.03) and
+    offset (+37 counts), 3 counts of noise on both. Returns ``(left, right)`` float64.
+    """
+    rows, width = shape
+    rng = np.random.default_rng(seed)
+    world = np.arange(-margin, width + margin, dtype=np.float64)
+    wall = 8000.0 + 3.0 * rng.standard_normal((rows, len(world))).cumsum(axis=1)
+    texture = rng.normal(0.0, 0.15, (len(bodies), rows, len(world)))
+    columns = np.arange(width, dtype=np.float64)
+
+    def render(shift_of):
+        image = np.array([np.interp(columns + shift_of(wall_disparity), world, wall[row])
+                          for row in range(rows)])
+        background, nearest = image.copy(), np.full(shape, -np.inf)
+        for k, (first, end, height, counts, disparity) in enumerate(bodies):
+            at = columns + shift_of(disparity)
+            covered = (at >= first) & (at < end)
+            for row in range(min(height, rows)):
+                on = covered & (disparity > nearest[row])     # the nearest one shows
+                image[row, on] = background[row, on] + counts * (
+                    1.0 + np.interp(at[on], world, texture[k, row]))
+                nearest[row, on] = disparity
+        return image
+
+    left = render(lambda d: 0.0) + rng.normal(0.0, 3.0, shape)
+    right = 1.03 * render(lambda d: d) + 37.0 + rng.normal(0.0, 3.0, shape)
+    return left, right
+
+
 def evaluable_features(moments, gamma, window, shift):
     """Left features whose true right match lies in the frame with its whole window."""
     half = window // 2
