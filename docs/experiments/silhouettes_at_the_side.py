@@ -14,14 +14,18 @@ disparities (``fx B`` 46.3 px m: far bodies 9-10 px, 4.6-5.1 m; nearer ones 13-1
 - **left, negative**: a body cut by the left side with a negative disparity (``cx_left -
   cx_right < 0``: the right image sees further on the left).
 
-Each shape's fate as ``people.silhouette_detections`` decides it: no disparity (ZNCC under
+Each shape's fate as ``people.silhouette_detections`` decides it: at side
+(``reaches_the_unseen``: not searched), no disparity (ZNCC under
 ``silhouette_min_correlation``), not back (``right_to_left_agrees``), kept within 1 px of
-the truth, kept wrong.
+the truth, kept wrong. ``--search-all``: the side shapes searched too (what the search and
+the search back alone make of them).
 Run: ``.venv/bin/python docs/experiments/silhouettes_at_the_side.py``.
 """
 
+import sys
+
 import numpy as np
-from st_stereo.core.people import PeopleConfig
+from st_stereo.core.people import PeopleConfig, reaches_the_unseen
 from st_stereo.core.silhouette_stereo import right_to_left_agrees, silhouette_disparity
 from st_stereo.tools.eval_subpixel import layered_bodies_pair
 
@@ -30,8 +34,10 @@ FAR_NEAR = ((9.0, 13.0), (9.5, 14.0), (10.0, 16.0), (9.0, 15.0))
 SEEDS = range(3)
 
 
-def fate(left, right, mask, low, high, truth, min_correlation):
-    """Return what becomes of one shape: no_disparity, not_back, kept or kept_wrong."""
+def fate(left, right, mask, low, high, truth, min_correlation, search_all=False):
+    """Return what becomes of one shape: at_side, no_disparity, not_back, kept, kept_wrong."""
+    if not search_all and reaches_the_unseen(mask):
+        return 'at_side'
     found, correlation = silhouette_disparity(left, right, mask, low, high, exclude=mask)
     if not correlation >= min_correlation:
         return 'no_disparity'
@@ -40,7 +46,7 @@ def fate(left, right, mask, low, high, truth, min_correlation):
     return 'kept' if abs(found - truth) <= 1.0 else 'kept_wrong'
 
 
-def tally(case, width, config):
+def tally(case, width, config, search_all=False):
     """Fates of the shapes of one case at one visible width, over the grid and the seeds."""
     fates = {}
     for far, near in FAR_NEAR:
@@ -60,7 +66,7 @@ def tally(case, width, config):
                 mask[:20, 80 - width:] = True
                 low, high, truth = 3.1, 46.3, far
             outcome = fate(left, right, mask, low, high, truth,
-                           config.silhouette_min_correlation)
+                           config.silhouette_min_correlation, search_all)
             fates[outcome] = fates.get(outcome, 0) + 1
     return fates
 
@@ -68,12 +74,13 @@ def tally(case, width, config):
 def main():
     """Print the table: per case and visible width, the shapes' fates."""
     config = PeopleConfig()
-    keys = ('no_disparity', 'not_back', 'kept', 'kept_wrong')
+    search_all = '--search-all' in sys.argv[1:]
+    keys = ('at_side', 'no_disparity', 'not_back', 'kept', 'kept_wrong')
     print('| case | visible columns | shapes | ' + ' | '.join(keys) + ' |')
     print('|---|---:|---:|' + '---:|' * len(keys))
     for case in ('cut', 'hidden', 'hidden, warmer', 'left, negative'):
         for width in (2, 3, 4, 5, 6, 8):
-            fates = tally(case, width, config)
+            fates = tally(case, width, config, search_all)
             print(f'| {case} | {width} | {sum(fates.values())} | ' +
                   ' | '.join(str(fates.get(key, 0)) for key in keys) + ' |')
 

@@ -10,16 +10,18 @@ back one (``eval_subpixel.make_layered_pair``: 3 counts of noise, the right came
 ``contrast`` counts above its 20th (the wall): a warm room's far bodies are 35-145 counts
 above the wall behind them (docs/people.md). The silhouettes are the people stage's: the
 difference to the wall level over ``silhouette_margin_counts`` seeded by
-``warm_margin_counts`` (``top_silhouettes``), each searched (``silhouette_disparity``,
-other warm pixels out of the ring) and checked back (``right_to_left_agrees``) as
-``people.silhouette_detections`` does. Front disparities 8.0, 9.4, 10.7, 12.3 px (5.8-3.8 m
-on the simulated rig), back ones 4.2 and 6.5 px, 5 noise seeds each.
+``warm_margin_counts`` (``top_silhouettes``); one that reaches the image's side is not
+searched (``people.reaches_the_unseen``), the others are searched
+(``silhouette_disparity``, other warm pixels out of the ring) and checked back
+(``right_to_left_agrees``) as ``people.silhouette_detections`` does. Front disparities
+8.0, 9.4, 10.7, 12.3 px (5.8-3.8 m on the simulated rig), back ones 4.2 and 6.5 px, 5 noise
+seeds each.
 Run: ``.venv/bin/python docs/experiments/silhouettes_on_a_real_frame.py``.
 """
 
 import numpy as np
 from st_stereo.core.image_io import read_thermal_image, resize_area
-from st_stereo.core.people import PeopleConfig
+from st_stereo.core.people import PeopleConfig, reaches_the_unseen
 from st_stereo.core.silhouette_stereo import (right_to_left_agrees, silhouette_disparity,
                                               top_silhouettes)
 from st_stereo.package_data import shared_thermal_dir
@@ -45,8 +47,8 @@ def silhouette_errors(contrast, config=None):
     """
     Return one row per silhouette found: ``(columns, error px or nan, fate)``.
 
-    ``fate``: ``kept``, ``no_disparity`` or ``not_back``, as ``silhouette_detections``
-    counts them.
+    ``fate``: ``at_side``, ``kept``, ``no_disparity`` or ``not_back``, as
+    ``silhouette_detections`` counts them.
     """
     config = config or PeopleConfig()
     frame, bodies = real_bodies(contrast)
@@ -60,6 +62,9 @@ def silhouette_errors(contrast, config=None):
                 strong = left - WALL_COUNTS > config.warm_margin_counts
                 for mask in top_silhouettes(weak, strong):
                     columns = int(mask.any(axis=0).sum())
+                    if reaches_the_unseen(mask):
+                        rows.append((columns, float('nan'), 'at_side'))
+                        continue
                     disparity, correlation = silhouette_disparity(left, right, mask, *SEARCH,
                                                                   exclude=weak)
                     if not correlation >= config.silhouette_min_correlation:
@@ -74,9 +79,9 @@ def silhouette_errors(contrast, config=None):
 
 def main():
     """Print the table: per contrast and silhouette width, fates and errors."""
-    print('| contrast (counts) | silhouette width | found | no disparity | not back | kept | '
-          'median abs error (px) | p90 (px) | max (px) |')
-    print('|---:|---|---:|---:|---:|---:|---:|---:|---:|')
+    print('| contrast (counts) | silhouette width | found | at side | no disparity | not back | '
+          'kept | median abs error (px) | p90 (px) | max (px) |')
+    print('|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|')
     for contrast in (300.0, 150.0, 110.0):
         rows = silhouette_errors(contrast)
         for label, low, high in (('2-3 columns', 2, 3), ('4+ columns', 4, 10 ** 6)):
@@ -85,7 +90,7 @@ def main():
             fates = [r[2] for r in chosen]
             stats = ' | '.join(f'{np.percentile(errors, q):.3f}' if len(errors) else '-'
                                for q in (50, 90, 100))
-            print(f'| {contrast:.0f} | {label} | {len(chosen)} | '
+            print(f'| {contrast:.0f} | {label} | {len(chosen)} | {fates.count("at_side")} | '
                   f'{fates.count("no_disparity")} | {fates.count("not_back")} | '
                   f'{len(errors)} | {stats} |')
 

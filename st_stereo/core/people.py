@@ -1028,6 +1028,22 @@ def _one_depth(left, right, mask, cols, bounds, stereo, depth, tolerance_m, vali
     return True
 
 
+def reaches_the_unseen(mask, valid=None):
+    """
+    Whether a silhouette reaches the image's side or bottom, or a pixel without data.
+
+    ``mask`` (bool) and its 8-neighbours against the image's border and ``valid`` (bool, the
+    pixels with data; all when None). The top edge does not count: every silhouette rises
+    out of it.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    seen = np.ones(mask.shape, dtype=bool) if valid is None else np.asarray(valid, bool)
+    seen = np.pad(seen, 1, constant_values=False)
+    seen[0, :] = True                                   # above the top edge
+    grown = ndimage.binary_dilation(np.pad(mask, 1), structure=EIGHT_CONNECTED)
+    return bool((grown & ~seen).any())
+
+
 def silhouette_detections(detections, weak, warm, left, right, transform, intrinsics, stereo,
                           pixels, config=None, counts=None, valid_right=None, valid_left=None,
                           motion=None):
@@ -1058,10 +1074,13 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
     guess of how far the body's middle lies behind its silhouette, in quadrature) along the
     viewing direction; across it, a quarter of its width, or, for a shape narrower than
     shoulders (``SHOULDERS_M``: a fragment of a body, its middle up to the difference's half
-    off), half of what it lacks of them; a shape at the image's side or beside pixels
-    without data (``valid_left``), whose body may go on beyond them, half of
-    ``TOP_SILHOUETTE_MAX_WIDTH_M`` (such detections are counted, among the others, as
-    ``silhouette_detections_at_side``).
+    off), half of what it lacks of them.
+
+    A shape that reaches the image's side or a pixel without data (``reaches_the_unseen``,
+    ``valid_left``) is not searched (``silhouette_at_side``): the left image does not show
+    what lies beyond, and a nearer body standing there can hide the shape in the right
+    image, whose edge the search then finds and the search back may confirm
+    (docs/people.md, step 4).
 
     ``motion``: ``(previous_left, dt_s, skew_s)``, the previous pair's rectified left image,
     the time since it and this pair's skew (right acquisition less left, s). The right
@@ -1075,15 +1094,15 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
 
     ``counts`` (a dict) gains ``silhouettes``, ``silhouette_covered``,
     ``silhouette_no_disparity``, ``silhouette_not_back``, ``silhouette_two_depths``,
-    ``silhouette_not_body``, ``silhouette_detections``, ``silhouette_detections_at_side``,
+    ``silhouette_at_side``, ``silhouette_not_body``, ``silhouette_detections``,
     ``silhouette_skew_corrected`` and ``silhouette_skew_not_corrected``.
     """
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('silhouettes', 'silhouette_covered', 'silhouette_no_disparity',
                 'silhouette_not_back', 'silhouette_two_depths', 'silhouette_not_body',
-                'silhouette_detections', 'silhouette_detections_at_side',
-                'silhouette_skew_corrected', 'silhouette_skew_not_corrected'):
+                'silhouette_at_side', 'silhouette_detections', 'silhouette_skew_corrected',
+                'silhouette_skew_not_corrected'):
         counts.setdefault(key, 0)
     fx, fy, cx, cy = intrinsics
     fx_baseline, disparity_offset = stereo
@@ -1103,6 +1122,9 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
         if any(d.members is not None and held[np.asarray(d.members, dtype=int)].any()
                for d in detections):
             counts['silhouette_covered'] += 1
+            continue
+        if reaches_the_unseen(mask, valid_left):
+            counts['silhouette_at_side'] += 1
             continue
         disparity, correlation = silhouette_disparity(left, right, mask, low, high,
                                                       valid_right=valid_right, exclude=exclude)
@@ -1147,10 +1169,7 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
         sigma = depth * config.disparity_sigma_px / (disparity - disparity_offset) * \
             math.hypot(ray[0], ray[1]) / float(np.linalg.norm(ray))
         half_width = 0.5 * (cols.max() - cols.min() + 1) * depth / fx
-        at_side = bool(region[:, 0].any() or region[:, -1].any() or
-                       (valid_left is not None and (region & ~valid_left).any()))
-        sigma_across = 0.5 * TOP_SILHOUETTE_MAX_WIDTH_M if at_side else \
-            max(0.5 * half_width, SHOULDERS_M / 2 - half_width)
+        sigma_across = max(0.5 * half_width, SHOULDERS_M / 2 - half_width)
         sigma_along = math.hypot(sigma, config.cut_body_offset_m)
         across = np.array([-away[1], away[0]])
         covariance = sigma_along ** 2 * np.outer(away, away) + \
@@ -1164,7 +1183,6 @@ def silhouette_detections(detections, weak, warm, left, right, transform, intrin
                              members=members, silhouette=True,
                              shape_pixels=np.flatnonzero(mask)))
         counts['silhouette_detections'] += 1
-        counts['silhouette_detections_at_side'] += int(at_side)
     return out
 
 
@@ -2002,7 +2020,7 @@ class PeopleEstimator:
                        'silhouette_two_depths': 0,
                        'silhouette_not_body': 0,
                        'silhouette_detections': 0, 'silhouette_pairs_not_checked': 0,
-                       'silhouette_detections_at_side': 0,
+                       'silhouette_at_side': 0,
                        'silhouette_skew_corrected': 0, 'silhouette_skew_not_corrected': 0}
         self.previous_left = None       # (stamp, the last pair's left image) for the skew
 

@@ -114,8 +114,9 @@ def silhouette_disparity(left, right, mask, low, high, ring_px=2, valid_right=No
     the parabola through the finest best's neighbours' ``1 - ZNCC``. The ring leaves out the
     pixels of ``exclude`` (bool, the left image's shape): another warm thing beside the
     silhouette, at its own depth, would decide the correlation. ``correlation`` is the best
-    ZNCC (-1..1). NaN when no shift is usable, the best lies on a bound (the true one may lie
-    beyond) or the region is flat.
+    ZNCC (-1..1). NaN when no shift is usable, the best lies on a bound or next to a shift
+    not usable (the true one may lie beyond: a shape cut by the image's side, searched back)
+    or the region is flat.
     """
     left = np.asarray(left, dtype=np.float64)
     right = np.asarray(right, dtype=np.float64)
