@@ -71,7 +71,8 @@ def test_a_second_process_loads_every_kernel_from_the_disk_cache(tmp_path):
     import sys
     names = sorted(('orientation_energy', 'moments', 'lades_volume', 'cross_power',
                     'shift_phases', 'poc_peak_fits', 'feature_candidates', 'left_right_best',
-                    'continuity_medians', 'deramped_strips', 'reramped_columns'))
+                    'continuity_medians', 'deramped_strips', 'reramped_columns',
+                    'window_ncc'))
     script = (
         f'KERNELS = {names!r}\n'
         'from st_stereo.core import kernels\n'
@@ -156,3 +157,78 @@ def test_the_subpixel_stage_matches_the_numpy_reference(any_frame_80x60, setting
     # uses sqrt and one reciprocal for hypot and a complex division (a few ulp).
     np.testing.assert_allclose(got.disparity, expected.disparity, rtol=0, atol=1e-12)
     np.testing.assert_allclose(got.peak_value, expected.peak_value, rtol=0, atol=1e-12)
+
+
+def _moving_block(frame, rng, shift_px=1.7):
+    # The frame with a block of columns moved along the rows between two frames of a
+    # camera (a walker), the rest static; the sensor's noise in both frames.
+    from st_stereo.core.fourier import fourier_shift_image_x
+    moved = fourier_shift_image_x(frame, shift_px)
+    block = np.zeros(frame.shape, dtype=bool)
+    block[:, 25:55] = True
+    noise = 0.01 * np.ptp(frame)
+    previous = np.where(block, moved, frame) + rng.normal(0, noise, frame.shape)
+    return previous, frame + rng.normal(0, noise, frame.shape)
+
+
+def test_the_skew_tracks_match_the_numpy_reference(any_frame_80x60):
+    # The NCC search of the camera-skew correction: OpenCV's float32 matchTemplate per
+    # feature against the compiled float64 kernel, same decisions, velocities within
+    # 1e-3 px/s (a 1e-4 px shift over the 0.1 s period; ~1e-5 px of disparity at 57 ms).
+    from st_stereo.core.skew import feature_motion
+    previous, current = _moving_block(any_frame_80x60, np.random.default_rng(6))
+    result = StereoMatcher(COMPILED).match(current, current)
+    motions = [feature_motion(previous, current, result.x_left, result.y, 0.1,
+                              kernels=config.kernels) for config in (NUMPY, COMPILED)]
+    expected, got = motions
+    assert expected.moving.sum() > 20 and (~expected.changed).sum() > 20
+    for name in ('moving', 'changed', 'tracked'):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name), name)
+    np.testing.assert_allclose(got.velocity_x, expected.velocity_x, rtol=0, atol=1e-3)
+    np.testing.assert_allclose(got.ncc, expected.ncc, rtol=0, atol=2e-5)
+
+
+@pytest.mark.parametrize('features', ['scattered', 'dense'])
+def test_the_ncc_kernel_is_opencvs_matchtemplate(lepton_frame, features):
+    # Both ways the kernel sums (per window for a few scattered features, shared running
+    # sums for many), and OpenCV's flat windows: a flat template correlates 1 at every
+    # offset, a flat window 0.
+    from st_stereo.core.skew import window_ncc
+    frame = lepton_frame.astype(np.float64)
+    previous, current = _moving_block(frame, np.random.default_rng(7))
+    current[40:52, 8:20] = 700.0          # a flat template around (46, 14)
+    previous[5:20, 60:79] = 300.0         # flat windows around (12, 69)
+    previous, current = (np.pad(image - image.mean(), 12, mode='edge')
+                         for image in (previous, current))
+    if features == 'scattered':
+        # padded pixels: the flat template's, the flat windows', two textured ones
+        y, x = np.array([58, 24, 40, 70]), np.array([26, 81, 40, 90])
+    else:
+        y, x = (axis.ravel() + 12 for axis in np.mgrid[2:58:2, 2:78:3])
+    offsets_y, offsets_x = np.arange(-3, 4), np.arange(-9, 10)
+    opencv = window_ncc(current, previous, y, x, 4, offsets_y, offsets_x, 'numpy')
+    got = window_ncc(current, previous, y, x, 4, offsets_y, offsets_x, 'compiled')
+    assert got.shape == opencv.shape == (len(y), 7, 19)
+    # In float64 by definition, where neither window is flat:
+    windows = np.lib.stride_tricks.sliding_window_view
+    template = windows(current, (9, 9))[y - 4, x - 4]
+    template = template - template.mean(axis=(1, 2), keepdims=True)
+    region = windows(previous, (9, 9))[(y - 4)[:, None, None] + offsets_y[:, None],
+                                       (x - 4)[:, None, None] + offsets_x]
+    region = region - region.mean(axis=(3, 4), keepdims=True)
+    numerator = np.einsum('kij,kabij->kab', template, region)
+    template_norm = np.sqrt(np.einsum('kij,kij->k', template, template))[:, None, None]
+    region_norm = np.sqrt(np.einsum('kabij,kabij->kab', region, region))
+    norm = template_norm * region_norm
+    textured = norm > 1e-9 * norm.max()
+    assert textured.mean() > 0.5 and not textured.all()
+    np.testing.assert_allclose(got[textured], (numerator / norm)[textured], rtol=0, atol=1e-9)
+    # OpenCV correlates in float32 (its error grows where a window's spread is small beside
+    # the frame's values: up to 4e-3 here); where both hold 1 % of the largest spread:
+    held = (template_norm > 0.01 * template_norm.max()) & \
+        (region_norm > 0.01 * region_norm.max())
+    assert held.any()
+    np.testing.assert_allclose(got[held], opencv[held], rtol=0, atol=2e-4)
+    # Flat windows as OpenCV has them: a flat template 1 at every offset, a flat window 0.
+    assert (opencv[~textured] == got[~textured]).all()
+    assert (got == 1.0).all(axis=(1, 2)).any() and (got == 0.0).any()

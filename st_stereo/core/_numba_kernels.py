@@ -470,3 +470,135 @@ def blurred_ellipses(params, xs, ys, dx, dy, out):
                 gradient = math.sqrt(gx * gx + gy * gy) / s
                 total += _ndtr((1.0 - s) / max(gradient, 1e-6) / width)
             out[i, j] = params[i, 7] + params[i, 6] * (total / count)
+
+
+@jit
+def _opencv_ccoeff_normed(numerator, template_norm, window_deviation):
+    # OpenCV's TM_CCOEFF_NORMED finish (templmatch.cpp): a flat template correlates 1
+    # everywhere, |num| within 12.5 % beyond the norm rounds to +-1, beyond that to 0.
+    if template_norm == 0.0:
+        return 1.0
+    norm = window_deviation * template_norm
+    if abs(numerator) < norm:
+        return numerator / norm
+    if abs(numerator) < norm * 1.125:
+        return 1.0 if numerator > 0.0 else -1.0
+    return 0.0
+
+
+@jit
+def window_ncc(current, previous, ys, xs, half, offsets_y, offsets_x, out):
+    """
+    Zero-mean NCC of each feature's window against another frame at every offset.
+
+    ``out[k, a, b]`` is OpenCV's ``TM_CCOEFF_NORMED`` of ``current``'s window of side
+    ``2 half + 1`` centred on ``(ys[k], xs[k])`` against ``previous``'s window centred on
+    ``(ys[k] + offsets_y[a], xs[k] + offsets_x[b])``, in float64 (OpenCV's is float32, a few
+    1e-6 apart), with OpenCV's handling of flat windows. Every window must lie inside both
+    frames. The cross sums are the one cost (the windows' own sums are running box sums): per
+    offset either directly over each window, or, when the features are dense enough for it
+    to be cheaper, as running box sums of the frames' product over the features' bounding box
+    (features 1 px apart share 72 of their 81 products).
+    """
+    rows, cols = current.shape
+    n = ys.shape[0]
+    side = 2 * half + 1
+    area = float(side * side)
+    if n == 0:
+        return
+    template_sum = np.empty(n)
+    template_norm = np.empty(n)
+    for k in range(n):
+        total = 0.0
+        for r in range(ys[k] - half, ys[k] + half + 1):
+            for c in range(xs[k] - half, xs[k] + half + 1):
+                total += current[r, c]
+        mean = total / area
+        spread = 0.0
+        for r in range(ys[k] - half, ys[k] + half + 1):
+            for c in range(xs[k] - half, xs[k] + half + 1):
+                spread += (current[r, c] - mean) * (current[r, c] - mean)
+        template_sum[k] = total
+        # OpenCV: the variance per pixel is compared with DBL_EPSILON, then the norm is
+        # sqrt(variance * area).
+        variance = spread / area
+        template_norm[k] = math.sqrt(variance * area) if variance >= 2.220446049250313e-16 \
+            else 0.0
+    # Box sums of the other frame and of its square at every window centre.
+    box = np.zeros((rows, cols))
+    box_square = np.zeros((rows, cols))
+    column = np.zeros(cols)
+    column_square = np.zeros(cols)
+    for r in range(min(side, rows)):
+        for c in range(cols):
+            value = previous[r, c]
+            column[c] += value
+            column_square[c] += value * value
+    for r in range(half, rows - half):
+        if r > half:
+            for c in range(cols):
+                value_in = previous[r + half, c]
+                value_out = previous[r - half - 1, c]
+                column[c] += value_in - value_out
+                column_square[c] += value_in * value_in - value_out * value_out
+        total = 0.0
+        total_square = 0.0
+        for c in range(min(side, cols)):
+            total += column[c]
+            total_square += column_square[c]
+        if cols > 2 * half:
+            box[r, half] = total
+            box_square[r, half] = total_square
+        for c in range(half + 1, cols - half):
+            total += column[c + half] - column[c - half - 1]
+            total_square += column_square[c + half] - column_square[c - half - 1]
+            box[r, c] = total
+            box_square[r, c] = total_square
+    # sqrt(sum of squares - sum^2 / area): OpenCV's window norm, once per pixel; a variance
+    # within the running sums' residue (1e-10 of the sum of squares) is a flat window's.
+    deviation = np.zeros((rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            variance = box_square[r, c] - box[r, c] * box[r, c] / area
+            if variance > 1e-10 * box_square[r, c]:
+                deviation[r, c] = math.sqrt(variance)
+    y_low, y_high, x_low, x_high = rows, -1, cols, -1
+    for k in range(n):
+        y_low, y_high = min(y_low, ys[k]), max(y_high, ys[k])
+        x_low, x_high = min(x_low, xs[k]), max(x_high, xs[k])
+    first_row, first_col = y_low - half, x_low - half
+    height, width = y_high - y_low + side, x_high - x_low + side
+    dense = 3 * height * width < n * side * side
+    product = np.empty((height, width))
+    vertical = np.empty((y_high - y_low + 1, width))
+    for a in range(offsets_y.shape[0]):
+        dy = offsets_y[a]
+        for b in range(offsets_x.shape[0]):
+            dx = offsets_x[b]
+            if dense:
+                for i in range(height):
+                    for j in range(width):
+                        product[i, j] = current[first_row + i, first_col + j] * \
+                            previous[first_row + i + dy, first_col + j + dx]
+                for j in range(width):
+                    vertical[0, j] = 0.0
+                for i in range(side):
+                    for j in range(width):
+                        vertical[0, j] += product[i, j]
+                for i in range(1, y_high - y_low + 1):
+                    for j in range(width):
+                        vertical[i, j] = vertical[i - 1, j] + product[i + side - 1, j] - \
+                            product[i - 1, j]
+            for k in range(n):
+                cross = 0.0
+                if dense:
+                    i, j0 = ys[k] - y_low, xs[k] - half - first_col
+                    for j in range(j0, j0 + side):
+                        cross += vertical[i, j]
+                else:
+                    for r in range(ys[k] - half, ys[k] + half + 1):
+                        for c in range(xs[k] - half, xs[k] + half + 1):
+                            cross += current[r, c] * previous[r + dy, c + dx]
+                numerator = cross - template_sum[k] * box[ys[k] + dy, xs[k] + dx] / area
+                out[k, a, b] = _opencv_ccoeff_normed(numerator, template_norm[k],
+                                                     deviation[ys[k] + dy, xs[k] + dx])

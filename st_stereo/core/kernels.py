@@ -184,6 +184,23 @@ def continuity_medians(grid, y, x, radius):
     return count, median
 
 
+def window_ncc(current, previous, y, x, half, offsets_y, offsets_x):
+    """
+    Compiled zero-mean NCC of each feature's window at every offset (``skew.feature_motion``).
+
+    ``current`` and ``previous`` are the two frames (every window inside both); returns
+    (n, len(offsets_y), len(offsets_x)) float64, OpenCV's ``TM_CCOEFF_NORMED`` to a few 1e-6.
+    """
+    offsets_y = np.ascontiguousarray(offsets_y, dtype=np.int64)
+    offsets_x = np.ascontiguousarray(offsets_x, dtype=np.int64)
+    out = np.empty((len(y), len(offsets_y), len(offsets_x)))
+    _compiled().window_ncc(np.ascontiguousarray(current, dtype=np.float64),
+                           np.ascontiguousarray(previous, dtype=np.float64),
+                           np.ascontiguousarray(y, np.int64), np.ascontiguousarray(x, np.int64),
+                           int(half), offsets_y, offsets_x, out)
+    return out
+
+
 def blurred_ellipses(params, xs, ys, dx, dy):
     """
     Compiled counterpart of ``calibration.target_refinement.blurred_ellipse``, (n, m).
@@ -222,4 +239,6 @@ def warm_up():
                            index, index, 1)
         left_right_best(volume, mask, np.arange(2), index, index)
         continuity_medians(np.zeros((4, 4)), index, index, 1)
+        window_ncc(np.ones((5, 5)), np.ones((5, 5)), np.array([2]), np.array([2]), 1,
+                   np.arange(-1, 2), np.arange(-1, 2))
     return time.perf_counter() - start

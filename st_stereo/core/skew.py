@@ -45,6 +45,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+import st_stereo.core.kernels as compiled_kernels
 from st_stereo.core.subpixel import refine_subpixel_poc
 from st_stereo.core.triangulation import triangulate
 
@@ -66,7 +67,7 @@ class FeatureMotion:
 
 
 def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, search_y=3,
-                   min_ncc=0.5, static_px=0.25, change_noise=2.0):
+                   min_ncc=0.5, static_px=0.25, change_noise=2.0, kernels='auto'):
     """
     Measure each feature's horizontal image velocity between two frames of one camera.
 
@@ -93,6 +94,8 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         deviation over the frame; about 0.87 sigma for pure noise). Pure noise over 81 pixels
         exceeds 1.74 sigma with a probability far below 1e-15 (chi-square, 80 degrees of
         freedom), so a static scene keeps every disparity exactly.
+    kernels : str
+        ``STConfig.kernels``: the NCC search compiled or OpenCV's (``window_ncc``).
 
     Returns
     -------
@@ -127,16 +130,7 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         xi, yi = x[index] + reach_x, y[index] + reach_y
         offsets_x = np.arange(-search_x - 1, search_x + 2)
         offsets_y = np.arange(-search_y, search_y + 1)
-        # Zero-mean NCC of each feature's window against the previous frame at every offset
-        # (OpenCV's TM_CCOEFF_NORMED, one small search region per feature).
-        current32, previous32 = current.astype(np.float32), previous.astype(np.float32)
-        ncc = np.empty((len(index), len(offsets_y), len(offsets_x)))
-        for k, (fy, fx) in enumerate(zip(yi.tolist(), xi.tolist())):
-            template = current32[fy - half:fy + half + 1, fx - half:fx + half + 1]
-            region = previous32[fy - half - search_y:fy + half + search_y + 1,
-                                fx - half - search_x - 1:fx + half + search_x + 2]
-            ncc[k] = cv2.matchTemplate(region, template, cv2.TM_CCOEFF_NORMED)
-        ncc = np.nan_to_num(ncc, nan=-1.0)        # a flat window correlates with nothing
+        ncc = window_ncc(current, previous, yi, xi, half, offsets_y, offsets_x, kernels)
         # The best integer offset within the search range (the outer columns only serve the
         # parabola), then the sub-pixel column.
         inner = ncc[:, :, 1:-1]
@@ -164,6 +158,32 @@ def feature_motion(previous_left, left, x, y, period_s, window=9, search_x=8, se
         moving[index] = moves
         velocity[index] = np.where(moves, shift / period_s, 0.0)
     return FeatureMotion(velocity, moving, changed, tracked, best_ncc)
+
+
+def window_ncc(current, previous, y, x, half, offsets_y, offsets_x, kernels='auto'):
+    """
+    Zero-mean NCC of each feature's window against another frame at every offset.
+
+    ``ncc[k, a, b]`` correlates ``current``'s window of side ``2 half + 1`` centred on
+    ``(y[k], x[k])`` with ``previous``'s centred on ``(y[k] + offsets_y[a], x[k] +
+    offsets_x[b])`` (every window inside both frames; ``offsets`` consecutive integers). The
+    reference (``kernels`` numpy) is OpenCV's ``TM_CCOEFF_NORMED`` over one small search
+    region per feature, in float32; the compiled kernel (``kernels.window_ncc``) computes the
+    same in float64, its cross sums shared between neighbouring features, with OpenCV's
+    handling of flat windows (a flat template correlates 1, a flat window 0).
+    """
+    if compiled_kernels.use_compiled(kernels):
+        return compiled_kernels.window_ncc(current, previous, y, x, half, offsets_y, offsets_x)
+    current32, previous32 = current.astype(np.float32), previous.astype(np.float32)
+    ncc = np.empty((len(y), len(offsets_y), len(offsets_x)))
+    top, bottom = -offsets_y[0], offsets_y[-1]
+    before, after = -offsets_x[0], offsets_x[-1]
+    for k, (fy, fx) in enumerate(zip(np.asarray(y).tolist(), np.asarray(x).tolist())):
+        template = current32[fy - half:fy + half + 1, fx - half:fx + half + 1]
+        region = previous32[fy - half - top:fy + half + bottom + 1,
+                            fx - half - before:fx + half + after + 1]
+        ncc[k] = cv2.matchTemplate(region, template, cv2.TM_CCOEFF_NORMED)
+    return np.nan_to_num(ncc, nan=-1.0)        # a flat window correlates with nothing
 
 
 def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
@@ -293,7 +313,8 @@ class CameraFrames:
     period_s: float
 
 
-def bracketing_motion(x_left, y, disparity, skew_s, left_frames, right_frames=None):
+def bracketing_motion(x_left, y, disparity, skew_s, left_frames, right_frames=None,
+                      kernels='auto'):
     """
     Measure the features' motion on the camera whose frames bracket the other's instant.
 
@@ -309,13 +330,13 @@ def bracketing_motion(x_left, y, disparity, skew_s, left_frames, right_frames=No
 
     """
     if right_frames is not None and (skew_s > 0 or left_frames is None):
-        return camera_motion(right_frames, 'right', x_left, y, disparity), 'right'
+        return camera_motion(right_frames, 'right', x_left, y, disparity, kernels), 'right'
     if left_frames is None:
         raise ValueError('bracketing_motion: neither camera has two frames')
-    return camera_motion(left_frames, 'left', x_left, y, disparity), 'left'
+    return camera_motion(left_frames, 'left', x_left, y, disparity, kernels), 'left'
 
 
-def camera_motion(frames, camera, x_left, y, disparity):
+def camera_motion(frames, camera, x_left, y, disparity, kernels='auto'):
     """
     Track the features on one camera's frames (``feature_motion``).
 
@@ -327,7 +348,7 @@ def camera_motion(frames, camera, x_left, y, disparity):
         cols = np.shape(frames.current)[1]
         x = np.clip(np.rint(x - np.asarray(disparity)), 0, cols - 1)
     return feature_motion(frames.previous, frames.current, x.astype(np.int64), y,
-                          frames.period_s)
+                          frames.period_s, kernels=kernels)
 
 
 def cameras_disagree(motion, other, skew_s, tolerance_px):
@@ -353,12 +374,12 @@ def compensation_options(config):
     """
     Return ``SkewCompensator.correct``'s keyword options from an STConfig.
 
-    ``skew_drop_untracked`` and ``skew_agreement_px`` as they are; ``poc_config`` is the
-    config itself when ``skew_velocity`` is ``poc`` (its POC parameters re-measure the
-    velocities, ``poc_velocity``), else None (the NCC track's velocities).
+    ``skew_drop_untracked``, ``skew_agreement_px`` and ``kernels`` as they are;
+    ``poc_config`` is the config itself when ``skew_velocity`` is ``poc`` (its POC parameters
+    re-measure the velocities, ``poc_velocity``), else None (the NCC track's velocities).
     """
     return {'drop_untracked': config.skew_drop_untracked,
-            'agreement_px': config.skew_agreement_px,
+            'agreement_px': config.skew_agreement_px, 'kernels': config.kernels,
             'poc_config': config if config.skew_velocity == 'poc' else None}
 
 
@@ -409,7 +430,8 @@ class SkewCompensator:
         return CameraFrames(previous, np.asarray(current), period)
 
     def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None, right=None,
-                ffc=(False, False), drop_untracked=True, agreement_px=0.5, poc_config=None):
+                ffc=(False, False), drop_untracked=True, agreement_px=0.5, poc_config=None,
+                kernels='auto'):
         """
         Return ``result`` with skew-corrected disparities and points (or unchanged).
 
@@ -430,7 +452,7 @@ class SkewCompensator:
         POC does not find again keeps its NCC velocity, or, with ``drop_untracked``, is dropped
         and counted (``rejected_skew_poc``). Without ``right`` the NCC velocities serve. The
         two-camera check compares the NCC velocities (a drop is counted under its first
-        reason only).
+        reason only). ``kernels`` chooses the NCC search's implementation (``window_ncc``).
         """
         left_frames = self._frames(self.previous, self.previous_time, left, left_time_s)
         right_frames = None
@@ -460,7 +482,7 @@ class SkewCompensator:
             return result
         self.counts['pairs_skew_compensated'] += 1
         motion, camera = bracketing_motion(result.x_left, result.y, result.disparity, skew_s,
-                                           left_frames, right_frames)
+                                           left_frames, right_frames, kernels)
         self.counts['pairs_tracked_on_right'] += int(camera == 'right')
         self.counts['pairs_extrapolated'] += int((camera == 'right') != (skew_s > 0))
         self.counts['features_moving'] += int(motion.moving.sum())
@@ -491,7 +513,7 @@ class SkewCompensator:
             moving = motion.moving
             other = camera_motion(other_frames, 'left' if camera == 'right' else 'right',
                                   result.x_left[moving], result.y[moving],
-                                  result.disparity[moving])
+                                  result.disparity[moving], kernels)
             self.counts['features_checked_on_both'] += int(other.tracked.sum())
             disagree = cameras_disagree(motion, other, skew_s, agreement_px)
             self.counts['rejected_skew_disagreement'] += int((keep & disagree).sum())
