@@ -95,8 +95,8 @@ class GatedMatch:
 class RectifiedPairs(Node):
     """Publishes rectified pairs with the raw camera_infos, as the rectifier and driver do."""
 
-    def __init__(self, context, name='rectified_pairs'):
-        super().__init__(name, context=context, namespace='stereo')
+    def __init__(self, context, name='rectified_pairs', namespace='stereo'):
+        super().__init__(name, context=context, namespace=namespace)
         sensor = qos_profile_sensor_data
         self.images = [self.create_publisher(Image, f'{side}/image_rect', sensor)
                        for side in ('left', 'right')]

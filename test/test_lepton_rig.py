@@ -178,7 +178,7 @@ def test_lepton_driver_on_spi_publishes_every_unique_frame_once_in_pairs(reader)
         rate = stream_checks(subscriber.got, sent, MIN_RATE, (start + 3.0, end), 0.05)
         assert driver.exit_code == 0 and not driver.last_error
         # Diagnostics saw both cameras at the unique rate, every pair with its skew.
-        level, _, values = subscriber.got.statuses['lepton_driver: left camera']
+        level, _, values = subscriber.got.statuses['stereo/lepton_driver: left camera']
         assert float(values['unique frames per second']) >= MIN_RATE
         info = subscriber.got.pair_info[-1].status[0]
         keys = {kv.key for kv in info.values}
@@ -332,7 +332,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         # Diagnostics: ERROR for the left camera while it was gone; once its frames are back
         # no more ERROR (WARN while its 5 s frequency window still holds the outage).
         left = [(t, level) for t, name, level in got.history
-                if name == 'lepton_driver: left camera']
+                if name == 'stereo/lepton_driver: left camera']
         assert any(level == b'\x02' for t, level in left
                    if marks['unplug'] + 2.0 < t < marks['replug'])
         resumed = first_arrival_after(got, marks['replug'])
@@ -366,7 +366,7 @@ def test_spi_rig_survives_slow_boot_unplug_clock_step_and_ffc_failure(monkeypatc
         # the first pair after the FFC is the one flagged, never none.
         flagged = [array for array in got.pair_info if any(
             kv.key == 'right ffc' and kv.value == 'True' for kv in array.status[0].values)]
-        right_status = got.statuses.get('lepton_driver: right camera', (None, '', {}))
+        right_status = got.statuses.get('stereo/lepton_driver: right camera', (None, '', {}))
         right_ffc_values = sorted({kv.value for array in got.pair_info
                                    for kv in array.status[0].values if kv.key == 'right ffc'})
         assert 1 <= len(flagged) <= 4, (

@@ -59,14 +59,14 @@ def test_simulated_rig_end_to_end(ros):
     first = clouds[0]
     assert [f.name for f in first.fields][:3] == ['x', 'y', 'z']
     assert first.header.frame_id == 'stereo_left_optical_frame'
-    pairs = collector.statuses['lepton_driver: stereo pairs']
+    pairs = collector.statuses['stereo/lepton_driver: stereo pairs']
     for key in ('Actual frequency (Hz)', 'Events in window', 'Target frequency (Hz)',
                 'pair skew max (ms)', 'frames dropped (left unmatched)'):
         assert key in pairs
-    camera = collector.statuses['lepton_driver: left camera']
+    camera = collector.statuses['stereo/lepton_driver: left camera']
     for key in ('crc_errors', 'gaps', 'resyncs', 'FPA temperature (K)', 'FFC state'):
         assert key in camera
-    matching = collector.statuses['matcher: ST matching']
+    matching = collector.statuses['stereo/matcher: ST matching']
     for key in ('features', 'matches', 'rejected_left_right', 'rejected_subpixel_range',
                 'time total (ms)', 'latency from stamp, node clock, median (ms)',
                 'time from arrival to points2, median (ms)', 'Actual frequency (Hz)'):
@@ -317,7 +317,8 @@ def test_a_slow_matcher_drops_stale_pairs_counted_and_publishes_the_newest(ros):
     assert (counts['pairs'], counts['matched'], counts['dropped_stale']) == (4, 2, 2)
 
     def stale_in_diagnostics():
-        return collector.statuses.get('matcher: ST matching', {}).get('pairs dropped_stale')
+        return collector.statuses.get('stereo/matcher: ST matching', {}) \
+            .get('pairs dropped_stale')
 
     spin_until(executor, lambda: stale_in_diagnostics() == '2', 10.0)    # 1 Hz diagnostics
     assert stale_in_diagnostics() == '2'

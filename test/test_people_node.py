@@ -117,8 +117,8 @@ def test_people_wait_for_camera_info_then_come_with_the_pair_stamp_in_the_world_
     assert (last['x'][0], last['y'][0]) == pytest.approx((0.2, 2.0), abs=0.15)
     assert last['height'][0] == pytest.approx(1.75, abs=0.1)
     assert collector.markers[-1].markers[0].ns == 'people'
-    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
-    assert collector.statuses['people: people']['waiting_for_camera_info'] == '1'
+    spin_until(executor, lambda: 'stereo/people: people' in collector.statuses, 5.0)
+    assert collector.statuses['stereo/people: people']['waiting_for_camera_info'] == '1'
 
 
 def test_an_empty_scene_publishes_empty_messages(ros):
@@ -136,8 +136,8 @@ def test_a_cloud_without_z_is_dropped_counted_and_reported(ros):
     cloud.fields = [f for f in cloud.fields if f.name != 'z']
     feed(node, cloud, image)
     assert node.counts['dropped_bad_input'] == 1
-    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
-    assert collector.statuses['people: people']['dropped_bad_input'] == '1'
+    spin_until(executor, lambda: 'stereo/people: people' in collector.statuses, 5.0)
+    assert collector.statuses['stereo/people: people']['dropped_bad_input'] == '1'
     assert "no field(s) ['z']" in node.last_error
 
 
@@ -197,8 +197,8 @@ def test_points_without_their_image_still_publish_and_are_counted(ros):
     spin_until(executor, lambda: len(collector.poses) >= 3, 10.0)
     assert node.counts['pairs_without_image'] == 3
     assert [len(p.poses) for p in collector.poses] == [0, 0, 0]
-    spin_until(executor, lambda: 'people: people' in collector.statuses, 5.0)
-    assert collector.statuses['people: people']['pairs_without_image'] == '3'
+    spin_until(executor, lambda: 'stereo/people: people' in collector.statuses, 5.0)
+    assert collector.statuses['stereo/people: people']['pairs_without_image'] == '3'
 
 
 def test_without_use_image_points_alone_find_the_person(ros):
@@ -259,8 +259,8 @@ def test_a_far_body_cut_by_the_top_edge_is_a_person_on_its_legs_and_not_without(
         assert counts == [0, 0, 0, 0]
         seen = '0'
     spin_until(executor, lambda: 'people cut_legs_seen' in
-               collector.statuses.get('people: people', {}), 10.0)
-    status = collector.statuses['people: people']
+               collector.statuses.get('stereo/people: people', {}), 10.0)
+    status = collector.statuses['stereo/people: people']
     assert status['people cut_legs_seen'] == seen
     assert int(status['people cut_legs_checked']) >= 4
 
@@ -356,7 +356,7 @@ def test_pairs_without_the_right_image_are_counted_and_a_bad_one_named(ros):
     assert point_cloud_fields(collector.clouds[-1], ('x',))['x'].size == 1
     messages = []
     collector.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: messages.extend(
-        status.message for status in msg.status if status.name == 'people: people'), 10)
+        status.message for status in msg.status if status.name == 'stereo/people: people'), 10)
     spin_until(executor, lambda: messages, 5.0)
     assert messages[-1].startswith('no silhouettes: right/image_rect: 79x60')
 
@@ -366,7 +366,7 @@ def test_right_images_that_never_come_are_a_warning(ros):
     node._on_right_info(camera_info_from_calibration(RIG.calibrations()[1], Header()))
     messages = []
     collector.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: messages.extend(
-        status.message for status in msg.status if status.name == 'people: people'), 10)
+        status.message for status in msg.status if status.name == 'stereo/people: people'), 10)
     for sec in range(1, 4):
         feed(node, *pair_messages(sec, person_in_rectified_frame(0.2, 2.0, sec)))
     assert node.counts['pairs_without_right_image'] == 3

@@ -131,7 +131,8 @@ def test_read_only_parameters_are_refused_through_the_parameter_service(ros):
 
 
 def _matcher_levels(streams):
-    return [status.level for status in streams.statuses if status.name == 'matcher: ST matching']
+    return [status.level for status in streams.statuses
+            if status.name == 'stereo/matcher: ST matching']
 
 
 @pytest.mark.timeout(120)
@@ -151,9 +152,38 @@ def test_the_matcher_leaves_error_after_a_good_pair(ros, people_80x60):
     spin_for(executor, 2.5)
     assert matcher.counts['matched'] == 1
     assert _matcher_levels(streams)[-1] != DiagnosticStatus.ERROR
-    last = next(s for s in reversed(streams.statuses) if s.name == 'matcher: ST matching')
+    last = next(s for s in reversed(streams.statuses) if s.name == 'stereo/matcher: ST matching')
     values = {kv.key: kv.value for kv in last.values}
     assert 'camera_info says 160x120' in values['last dropped pair']  # still said, not ERROR
+
+
+@pytest.mark.timeout(120)
+def test_each_rigs_diagnostics_are_named_by_its_namespace(ros, people_80x60):
+    # Several rigs on one machine publish on the one /diagnostics: named only by the node
+    # ('matcher: ST matching'), the rigs' statuses could not be told apart, and a monitor of
+    # one rig took another's counts.
+    from st_stereo.nodes.pipeline import SuiteMonitor
+    context, executor, add = ros
+    for rig in ('rig1', 'rig2'):
+        add(MatcherNode(context=context, namespace=rig))
+    monitors = {rig: add(SuiteMonitor(watch_raw=True, context=context, namespace=rig))
+                for rig in ('rig1', 'rig2')}
+    source = add(RectifiedPairs(context, namespace='rig1'))
+    names = set()
+
+    def keep_names(msg):
+        names.update(status.name for status in msg.status)
+
+    add(Node('names', context=context)).create_subscription(DiagnosticArray, '/diagnostics',
+                                                            keep_names, 10)
+    spin_for(executor, 1.0)
+    image = (7800 + (people_80x60 - people_80x60.min()) * 800 /
+             np.ptp(people_80x60)).astype(np.uint16)
+    source.publish_images(1, image, image, (160, 120))          # rig1 only, a bad pair
+    spin_for(executor, 2.5)
+    assert {'rig1/matcher: ST matching', 'rig2/matcher: ST matching'} <= names
+    assert monitors['rig1'].matcher_values['pairs dropped_bad_input'] == '1'
+    assert monitors['rig2'].matcher_values['pairs dropped_bad_input'] == '0'
 
 
 @pytest.fixture(scope='module')

@@ -71,6 +71,18 @@ def key_values(msg):
     return {item.key: item.value for status in msg.status for item in status.values}
 
 
+def status_name(node, task):
+    """
+    Name a node's diagnostic status ``'<namespace>/<node>: <task>'``, namespace without '/'.
+
+    diagnostic_updater names a status ``'<node>: <task>'``; in the default namespace this is
+    the same name. Under a namespace (several rigs on one machine, ``/rig1``, ``/rig2``, ...)
+    the namespace tells the rigs' statuses apart on the one ``/diagnostics`` topic, where an
+    aggregator or a monitor would otherwise see N identical names.
+    """
+    return f'{node.get_fully_qualified_name().lstrip("/")}: {task}'
+
+
 def status(name, hardware_id, level, message, values):
     """Build a DiagnosticStatus from a dict of values (rendered as strings)."""
     out = DiagnosticStatus()

@@ -368,8 +368,8 @@ class DriverNode(Node):
         level = diagnostics.WARN if any(ffc) else diagnostics.OK
         message = 'a camera is in or just out of FFC' if any(ffc) else 'ok'
         array = DiagnosticArray(header=header)
-        array.status = [diagnostics.status(f'{self.get_name()}: stereo pair', self.source,
-                                           level, message, values)]
+        array.status = [diagnostics.status(diagnostics.status_name(self, 'stereo pair'),
+                                           self.source, level, message, values)]
         self.pair_info_pub.publish(array)
         return float(values[SKEW_KEY]) * 1e-3
 
@@ -463,8 +463,8 @@ class DriverNode(Node):
                 values['recorded pair_info: last problem'] = self.recorded_pair_info.last_problem
         if self.last_error:
             level, summary = diagnostics.ERROR, self.last_error
-        return diagnostics.status(f'{self.get_name()}: stereo pairs', self.source, level,
-                                  summary, values)
+        return diagnostics.status(diagnostics.status_name(self, 'stereo pairs'), self.source,
+                                  level, summary, values)
 
     def _camera_status(self, index, now):
         side = SIDES[index]
@@ -505,8 +505,8 @@ class DriverNode(Node):
             summary = f'{counters["unique_frames"]} frames, {lost} lost' + \
                 (f' ({recent} in the last second)' if recent else '')
         self._lost_reported[index] = lost
-        return diagnostics.status(f'{self.get_name()}: {side} camera', hardware, level, summary,
-                                  counters)
+        return diagnostics.status(diagnostics.status_name(self, f'{side} camera'), hardware,
+                                  level, summary, counters)
 
     def destroy_node(self):
         """Stop the reading threads and close the devices, then the node."""

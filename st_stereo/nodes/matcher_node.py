@@ -379,7 +379,7 @@ class MatcherNode(Node):
             level, summary = diagnostics.WARN, 'the last pair gave no point (see the rejections)'
         if self.last_error:
             level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
-        status = diagnostics.status(f'{self.get_name()}: ST matching', 'st_stereo',
+        status = diagnostics.status(diagnostics.status_name(self, 'ST matching'), 'st_stereo',
                                     level, summary, values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
 

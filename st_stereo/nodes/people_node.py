@@ -328,8 +328,8 @@ class PeopleNode(Node):
                 self.counts['pairs_without_right_image'] >= self.counts['published']:
             level, message = diagnostics.WARN, 'no right/image_rect with the stamps of ' \
                 'points2: far bodies starved of matches are not placed by their silhouettes'
-        status = diagnostics.status(f'{self.get_name()}: people', 'st_stereo', level, message,
-                                    values)
+        status = diagnostics.status(diagnostics.status_name(self, 'people'), 'st_stereo',
+                                    level, message, values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
 
 

@@ -72,8 +72,12 @@ class SuiteMonitor(Node):
             .reshape(-1, len(DETECTION_FIELDS))
 
     def _on_diagnostics(self, msg):
+        # The matcher of this monitor's namespace (``diagnostics.status_name``): other rigs'
+        # matchers publish on the same /diagnostics.
+        namespace = self.get_namespace().strip('/')
         for status in msg.status:
-            if status.name.endswith('ST matching'):
+            node, _, task = status.name.rpartition(': ')
+            if task == 'ST matching' and node.rpartition('/')[0] == namespace:
                 self.matcher_values = {kv.key: kv.value for kv in status.values}
 
     def _on_raw(self, msg):

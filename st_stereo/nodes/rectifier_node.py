@@ -101,7 +101,7 @@ class RectifierNode(Node):
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         elif not self.counts['rectified']:
             level, message = diagnostics.WARN, 'no pair rectified yet'
-        status = diagnostics.status(f'{self.get_name()}: rectification', 'st_stereo',
+        status = diagnostics.status(diagnostics.status_name(self, 'rectification'), 'st_stereo',
                                     level, message, values)
         diagnostics.publish(self, self.diagnostics_pub, [status])
 

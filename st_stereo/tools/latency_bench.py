@@ -245,6 +245,8 @@ def many_rigs(count, seconds, warmup_s=2.0):
     back as a cloud and it published at least 90 % of the cameras' unique frame rate there (a
     starved driver, or a monitor that missed images, is not held either); the window must last
     3 s at least. A rig without any cloud is not held. The CPU is that of the window.
+    ``dropped_stale``: the pairs the matchers dropped as stale over the whole run (their
+    diagnostics), which tells a busy matcher from a loss in transport.
     """
     rclpy.init()
     monitors = [SuiteMonitor(watch_raw=True, namespace=f'rig{k}') for k in range(1, count + 1)]
@@ -271,7 +273,11 @@ def many_rigs(count, seconds, warmup_s=2.0):
     lowest_rate = min(published / length for published, _ in losses)
     held = length > 3.0 and not any(lost for _, lost in losses) and \
         lowest_rate >= 0.9 * UNIQUE_FRAME_HZ
+    # The matchers' own count of pairs they dropped as stale (keep_latest: busy when a newer
+    # pair came), from each rig's last diagnostics: the whole run, not only the window.
+    stale = [monitor.matcher_values.get('pairs dropped_stale') for monitor in monitors]
     return {'rigs': count, 'window_s': length, 'ready': ready,
+            'dropped_stale': sum(int(v) for v in stale) if None not in stale else 'n/a',
             'published': sum(p for p, _ in losses), 'lost': sum(lost for _, lost in losses),
             'lowest_rate_hz': lowest_rate, 'held': held,
             'cpu_percent_of_one_core': 100.0 * _cpu_over(samples, *window) / length}
@@ -286,13 +292,22 @@ def main(argv=None):
                         help='also run 1..N rigs (three processes each, namespaces /rig1.., '
                              'each replaying the bundled recording) and print the largest '
                              'number held without a lost pair')
+    parser.add_argument('--rigs-from', type=int, default=1, metavar='K',
+                        help='start the rigs runs at K rigs instead of 1')
+    parser.add_argument('--no-layouts', action='store_true',
+                        help='skip the one-process and three-process latency runs')
     args = parser.parse_args(argv)
+    if not 1 <= args.rigs_from <= max(args.rigs, 1):
+        parser.error(f'--rigs-from: expected 1..{max(args.rigs, 1)} (--rigs), '
+                     f'got {args.rigs_from}')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    rows = {'one process': one_process(args.seconds),
-            'three processes': three_processes(args.seconds)}
-    print('| layout | point clouds | rate Hz | pair published -> points2 median ms | p99 ms | '
-          'stamp -> points2 median ms | p99 ms | stale pairs dropped | CPU % of one core |')
-    print('|---|---|---|---|---|---|---|---|---|')
+    rows = {} if args.no_layouts else {'one process': one_process(args.seconds),
+                                       'three processes': three_processes(args.seconds)}
+    if rows:
+        print('| layout | point clouds | rate Hz | pair published -> points2 median ms | '
+              'p99 ms | stamp -> points2 median ms | p99 ms | stale pairs dropped | '
+              'CPU % of one core |')
+        print('|---|---|---|---|---|---|---|---|---|')
     for name, row in rows.items():
         print(f'| {name} | {row["clouds"]} | {row["rate_hz"]:.2f} | '
               f'{row["pair_latency_median_ms"]:.1f} | {row["pair_latency_p99_ms"]:.1f} | '
@@ -301,19 +316,21 @@ def main(argv=None):
     if args.rigs:
         print()
         print('| rigs | all ready before their drivers | scored window s | '
-              'pairs published in it | pairs lost | lowest published rate Hz | held | '
-              'CPU % of one core |')
-        print('|---|---|---|---|---|---|---|---|')
+              'pairs published in it | pairs lost | stale pairs dropped by the matchers (run) | '
+              'lowest published rate Hz | held | CPU % of one core |')
+        print('|---|---|---|---|---|---|---|---|---|')
         largest = 0
-        for count in range(1, args.rigs + 1):
+        for count in range(args.rigs_from, args.rigs + 1):
             row = many_rigs(count, min(args.seconds, 15.0))
             print(f'| {count} | {"yes" if row["ready"] else "no"} | {row["window_s"]:.1f} | '
-                  f'{row["published"]} | {row["lost"]} | '
+                  f'{row["published"]} | {row["lost"]} | {row["dropped_stale"]} | '
                   f'{row["lowest_rate_hz"]:.2f} | {"yes" if row["held"] else "no"} | '
                   f'{row["cpu_percent_of_one_core"]:.1f} |', flush=True)
             if not row['held']:
                 break
             largest = count
+        if args.rigs_from > 1 and not largest:
+            largest = f'none from {args.rigs_from}'
         print(f'largest number of rigs held (every pair published in the window matched): '
               f'{largest}')
     return 0
