@@ -232,3 +232,14 @@ def test_the_ncc_kernel_is_opencvs_matchtemplate(lepton_frame, features):
     # Flat windows as OpenCV has them: a flat template 1 at every offset, a flat window 0.
     assert (opencv[~textured] == got[~textured]).all()
     assert (got == 1.0).all(axis=(1, 2)).any() and (got == 0.0).any()
+
+
+def test_the_ncc_kernel_refuses_a_window_outside_the_frames():
+    # The kernel reads without bounds checks: its wrapper checks, as OpenCV does.
+    frame = np.random.default_rng(8).normal(size=(30, 40))
+    offsets_y, offsets_x = np.arange(-3, 4), np.arange(-9, 10)
+    kernels.window_ncc(frame, frame, np.array([7]), np.array([13]), 4, offsets_y, offsets_x)
+    for y, x in ((6, 13), (7, 12), (23, 20), (10, 27)):
+        with pytest.raises(ValueError, match='leave the 40x30 frames'):
+            kernels.window_ncc(frame, frame, np.array([y]), np.array([x]), 4, offsets_y,
+                               offsets_x)

@@ -568,37 +568,52 @@ def window_ncc(current, previous, ys, xs, half, offsets_y, offsets_x, out):
         x_low, x_high = min(x_low, xs[k]), max(x_high, xs[k])
     first_row, first_col = y_low - half, x_low - half
     height, width = y_high - y_low + side, x_high - x_low + side
-    dense = 3 * height * width < n * side * side
+    n_y, n_x = offsets_y.shape[0], offsets_x.shape[0]
+    if 3 * height * width >= n * side * side:
+        # Few or scattered windows: each window's cross sums directly, the offsets innermost
+        # (a template pixel times a row of the other frame: contiguous, vectorised).
+        cross = np.empty((n_y, n_x))
+        for k in range(n):
+            cross[:, :] = 0.0
+            for r in range(ys[k] - half, ys[k] + half + 1):
+                for c in range(xs[k] - half, xs[k] + half + 1):
+                    value = current[r, c]
+                    for a in range(n_y):
+                        row = r + offsets_y[a]
+                        for b in range(n_x):
+                            cross[a, b] += value * previous[row, c + offsets_x[b]]
+            for a in range(n_y):
+                for b in range(n_x):
+                    y, x = ys[k] + offsets_y[a], xs[k] + offsets_x[b]
+                    numerator = cross[a, b] - template_sum[k] * box[y, x] / area
+                    out[k, a, b] = _opencv_ccoeff_normed(numerator, template_norm[k],
+                                                         deviation[y, x])
+        return
     product = np.empty((height, width))
     vertical = np.empty((y_high - y_low + 1, width))
-    for a in range(offsets_y.shape[0]):
+    for a in range(n_y):
         dy = offsets_y[a]
-        for b in range(offsets_x.shape[0]):
+        for b in range(n_x):
             dx = offsets_x[b]
-            if dense:
-                for i in range(height):
-                    for j in range(width):
-                        product[i, j] = current[first_row + i, first_col + j] * \
-                            previous[first_row + i + dy, first_col + j + dx]
+            for i in range(height):
                 for j in range(width):
-                    vertical[0, j] = 0.0
-                for i in range(side):
-                    for j in range(width):
-                        vertical[0, j] += product[i, j]
-                for i in range(1, y_high - y_low + 1):
-                    for j in range(width):
-                        vertical[i, j] = vertical[i - 1, j] + product[i + side - 1, j] - \
-                            product[i - 1, j]
+                    product[i, j] = current[first_row + i, first_col + j] * \
+                        previous[first_row + i + dy, first_col + j + dx]
+            for j in range(width):
+                vertical[0, j] = 0.0
+            for i in range(side):
+                for j in range(width):
+                    vertical[0, j] += product[i, j]
+            for i in range(1, y_high - y_low + 1):
+                for j in range(width):
+                    vertical[i, j] = vertical[i - 1, j] + product[i + side - 1, j] - \
+                        product[i - 1, j]
             for k in range(n):
-                cross = 0.0
-                if dense:
-                    i, j0 = ys[k] - y_low, xs[k] - half - first_col
-                    for j in range(j0, j0 + side):
-                        cross += vertical[i, j]
-                else:
-                    for r in range(ys[k] - half, ys[k] + half + 1):
-                        for c in range(xs[k] - half, xs[k] + half + 1):
-                            cross += current[r, c] * previous[r + dy, c + dx]
-                numerator = cross - template_sum[k] * box[ys[k] + dy, xs[k] + dx] / area
+                i, j0 = ys[k] - y_low, xs[k] - half - first_col
+                cross_sum = 0.0
+                for j in range(j0, j0 + side):
+                    cross_sum += vertical[i, j]
+                y, x = ys[k] + dy, xs[k] + dx
+                numerator = cross_sum - template_sum[k] * box[y, x] / area
                 out[k, a, b] = _opencv_ccoeff_normed(numerator, template_norm[k],
-                                                     deviation[ys[k] + dy, xs[k] + dx])
+                                                     deviation[y, x])

@@ -193,11 +193,24 @@ def window_ncc(current, previous, y, x, half, offsets_y, offsets_x):
     """
     offsets_y = np.ascontiguousarray(offsets_y, dtype=np.int64)
     offsets_x = np.ascontiguousarray(offsets_x, dtype=np.int64)
+    y, x = np.ascontiguousarray(y, np.int64), np.ascontiguousarray(x, np.int64)
+    if np.shape(current) != np.shape(previous):
+        raise ValueError(f'window_ncc: frames of shapes {np.shape(current)} and '
+                         f'{np.shape(previous)}')
+    rows, cols = np.shape(current)
+    if len(y) and (y.min() - half + min(offsets_y.min(), 0) < 0 or
+                   y.max() + half + max(offsets_y.max(), 0) >= rows or
+                   x.min() - half + min(offsets_x.min(), 0) < 0 or
+                   x.max() + half + max(offsets_x.max(), 0) >= cols):
+        # The kernel reads without bounds checks (OpenCV raises here too).
+        raise ValueError(f'window_ncc: windows of half size {half} at rows {y.min()}..'
+                         f'{y.max()}, columns {x.min()}..{x.max()}, offsets '
+                         f'{offsets_y.min()}..{offsets_y.max()} x {offsets_x.min()}..'
+                         f'{offsets_x.max()} leave the {cols}x{rows} frames')
     out = np.empty((len(y), len(offsets_y), len(offsets_x)))
     _compiled().window_ncc(np.ascontiguousarray(current, dtype=np.float64),
                            np.ascontiguousarray(previous, dtype=np.float64),
-                           np.ascontiguousarray(y, np.int64), np.ascontiguousarray(x, np.int64),
-                           int(half), offsets_y, offsets_x, out)
+                           y, x, int(half), offsets_y, offsets_x, out)
     return out
 
 
