@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 import st_stereo.core.kernels as compiled_kernels
+from st_stereo.core.matcher import fill_invalid
 from st_stereo.core.subpixel import refine_subpixel_poc
 from st_stereo.core.triangulation import triangulate
 
@@ -413,11 +414,17 @@ class SkewCompensator:
         self.counts = dict.fromkeys(SKEW_COUNT_KEYS, 0)
 
     def remember(self, left, left_time_s, right=None, skew_s=None, model=None,
-                 ffc=(False, False)):
-        """Keep a pair's images as the previous ones (``correct`` does it for every pair)."""
-        self.previous, self.previous_time = np.asarray(left), left_time_s
+                 ffc=(False, False), left_valid=None, right_valid=None):
+        """
+        Keep a pair's images as the previous ones (``correct`` does it for every pair).
+
+        ``left_valid`` / ``right_valid``: the pixels with data (a rectified image's border has
+        none), as ``correct`` takes them.
+        """
+        self.previous, self.previous_time = fill_invalid(np.asarray(left), left_valid), \
+            left_time_s
         known = right is not None and left_time_s is not None and skew_s is not None
-        self.previous_right = np.asarray(right) if known else None
+        self.previous_right = fill_invalid(np.asarray(right), right_valid) if known else None
         self.previous_right_time = left_time_s + skew_s if known else None
         self.previous_model = model
         self.previous_ffc = tuple(bool(flag) for flag in ffc)
@@ -431,7 +438,7 @@ class SkewCompensator:
 
     def correct(self, result, left, left_time_s, skew_s, model=None, bounds=None, right=None,
                 ffc=(False, False), drop_untracked=True, agreement_px=0.5, poc_config=None,
-                kernels='auto'):
+                kernels='auto', left_valid=None, right_valid=None):
         """
         Return ``result`` with skew-corrected disparities and points (or unchanged).
 
@@ -453,7 +460,18 @@ class SkewCompensator:
         and counted (``rejected_skew_poc``). Without ``right`` the NCC velocities serve. The
         two-camera check compares the NCC velocities (a drop is counted under its first
         reason only). ``kernels`` chooses the NCC search's implementation (``window_ncc``).
+
+        ``left_valid`` / ``right_valid`` (bool, the images' shape; None: every pixel has data)
+        mark the pixels with data, as ``StereoMatcher.match`` takes them: the others (a
+        rectified image's border, 0) are filled from their nearest pixel with data before
+        anything is tracked, as the matcher fills them, in this pair and in the one kept for
+        the next. Left at 0, the border is a step of the frame's whole level (some 8000
+        counts) next to a few counts of texture: a window whose search reached it locked on
+        the step (a review: up to 94 px/s off, 5 px of disparity at 57 ms of skew).
         """
+        left = fill_invalid(np.asarray(left), left_valid)
+        if right is not None:
+            right = fill_invalid(np.asarray(right), right_valid)
         left_frames = self._frames(self.previous, self.previous_time, left, left_time_s)
         right_frames = None
         if skew_s is not None and left_time_s is not None:

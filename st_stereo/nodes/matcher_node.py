@@ -258,16 +258,17 @@ class MatcherNode(Node):
                 raise ValueError('no pair_info')
             left, right = _pair_images(left_msg, right_msg, left_info, right_info)
             model = self._model_for(left_info, right_info)
-            self.skew.remember(left, left_time, right, skew, model, ffc)
+            self.skew.remember(left, left_time, right, skew, model, ffc,
+                               data_mask(left_msg, left), data_mask(right_msg, right))
         except Exception:  # noqa: B902 - never costs the pair matched next
             self.counts['stale_not_kept_for_skew'] += 1
             return
         self.counts['stale_kept_for_skew'] += 1
 
-    def _compensate_skew(self, result, left, right, pair_times, model, bounds, config):
+    def _compensate_skew(self, result, left, right, pair_times, model, bounds, config, valid):
         left_time, skew, ffc = pair_times
         return self.skew.correct(result, left, left_time, skew, model, bounds, right=right,
-                                 ffc=ffc, **compensation_options(config))
+                                 ffc=ffc, **valid, **compensation_options(config))
 
     def _model_for(self, left_info, right_info):
         # Built once per calibration, not per message (the rectifier's P rarely changes).
@@ -299,14 +300,15 @@ class MatcherNode(Node):
             model = self._model_for(left_info, right_info)
             matcher = self.matcher
             matcher.model = model
-            result = matcher.match(left, right, left_valid=data_mask(left_msg, left),
-                                   right_valid=data_mask(right_msg, right))
+            valid = {'left_valid': data_mask(left_msg, left),
+                     'right_valid': data_mask(right_msg, right)}
+            result = matcher.match(left, right, **valid)
             pair_times = self._pair_times_of(left_msg)
             # The matcher's own configuration: a live change may replace self.config meanwhile.
             if matcher.config.skew_compensation:
                 result = self._compensate_skew(result, left, right, pair_times, model,
                                                matcher.disparity_bounds(),
-                                               matcher.config)
+                                               matcher.config, valid)
             if matcher.config.temporal_tolerance_px > 0:
                 self.temporal.tolerance_px = matcher.config.temporal_tolerance_px
                 stamp = left_msg.header.stamp

@@ -61,7 +61,8 @@ class PairMatching:
             self.match(left_raw, right_raw, left_time_s, skew_s)
             return
         left, right = self.rectifier.rectify(left_raw, right_raw)
-        self.skew.remember(left, left_time_s, right, skew_s)
+        self.skew.remember(left, left_time_s, right, skew_s,
+                           **self.rectifier.valid_keywords())
 
     def match(self, left_raw, right_raw, left_time_s, skew_s):
         """Return the pair's MatchResult, skew-corrected and checked as configured."""
@@ -70,6 +71,7 @@ class PairMatching:
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
                                        self.matcher.disparity_bounds(), right=right,
+                                       **self.rectifier.valid_keywords(),
                                        **compensation_options(self.config))
         if self.temporal is not None:
             result = self.temporal.check(result, left, left_time_s, self.rectifier.model)
