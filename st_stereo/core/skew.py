@@ -246,9 +246,9 @@ def poc_velocity(frames, camera, left, right, x_left, y, disparity, velocity_x, 
     pairs two instants and may be negative (fast motion at a small disparity): it is not
     clamped. Returns the velocities, nan where either window leaves the image, the POC
     rejected the window, or the two velocities disagree by more than
-    ``max_disagreement_px / T`` (the POC locked on something else). The images are the
-    rectified ones the caller has, invalid border included (the matcher fills it before its
-    own POC): a window reaching into it is more likely refused.
+    ``max_disagreement_px / T`` (the POC locked on something else). ``SkewCompensator``
+    passes its images with the pixels without data filled from their nearest data, as the
+    matcher's own POC sees them.
     """
     x_left = np.asarray(x_left, dtype=np.int64)
     y = np.asarray(y, dtype=np.int64)
