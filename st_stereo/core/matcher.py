@@ -422,6 +422,10 @@ def valid_interior(valid, shape, margin, name):
     valid = np.asarray(valid, dtype=bool)
     if valid.shape != shape:
         raise ValueError(f'{name} valid mask: expected shape {shape}, got {valid.shape}')
+    if valid.all():
+        # Every window inside: the same as no mask, without the erosion (0.28 ms per image
+        # at 80x60, which a node paid twice per pair for a rig's all-valid rectification).
+        return None
     from scipy import ndimage
     return ndimage.binary_erosion(valid, np.ones((2 * margin + 1,) * 2, dtype=bool),
                                   border_value=1)
