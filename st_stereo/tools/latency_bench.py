@@ -241,10 +241,11 @@ def many_rigs(count, seconds, warmup_s=2.0):
     The rectifiers and matchers start first; the drivers once every rig is ready
     (``_rig_ready``: its matcher has loaded its kernels). The rigs are scored over one common
     window, from ``warmup_s`` after the last rig's first cloud (the drivers' own start-up) to
-    1 s before the last pair: a rig is held when every pair it published in the window came
-    back as a cloud and it published at least 90 % of the cameras' unique frame rate there (a
-    starved driver, or a monitor that missed images, is not held either); the window must last
-    3 s at least. A rig without any cloud is not held. The CPU is that of the window.
+    1 s before the first rig's last pair (every rig still replaying): a rig is held when every
+    pair it published in the window came back as a cloud and it published at least 90 % of
+    the cameras' unique frame rate there (a starved driver, or a monitor that missed images,
+    is not held either); the window must last 3 s at least. A rig without any cloud is not
+    held. The CPU is that of the window. ``end_spread_s``: how far apart the replays ended.
     ``dropped_stale``: the pairs the matchers dropped as stale over the whole run (their
     diagnostics), which tells a busy matcher from a loss in transport.
     """
@@ -263,7 +264,13 @@ def many_rigs(count, seconds, warmup_s=2.0):
         for monitor in monitors:
             monitor.destroy_node()
         rclpy.try_shutdown()
-    last = max((t for m in monitors for t in m.raw_received.values()), default=launched)
+    # The window closes 1 s before the first rig's replay ends: the drivers start a second or
+    # two apart when there are many, and a rig whose recording had already ended would count
+    # as starved (before 2026-12-07 the window ran to the last rig's end, and 9 rigs at 129 %
+    # of one core "failed" on a replay that had finished).
+    ends = [max(m.raw_received.values()) for m in monitors if m.raw_received]
+    last = min(ends) if len(ends) == len(monitors) else \
+        max(ends, default=launched)
     # The window opens when the last rig is up (its first cloud) plus ``warmup_s``.
     firsts = [m.times[0] for m in monitors if m.times]
     opened = max(firsts) if len(firsts) == len(monitors) else launched
@@ -277,6 +284,7 @@ def many_rigs(count, seconds, warmup_s=2.0):
     # pair came), from each rig's last diagnostics: the whole run, not only the window.
     stale = [monitor.matcher_values.get('pairs dropped_stale') for monitor in monitors]
     return {'rigs': count, 'window_s': length, 'ready': ready,
+            'end_spread_s': max(ends) - min(ends) if ends else float('nan'),
             'dropped_stale': sum(int(v) for v in stale) if None not in stale else 'n/a',
             'published': sum(p for p, _ in losses), 'lost': sum(lost for _, lost in losses),
             'lowest_rate_hz': lowest_rate, 'held': held,
@@ -315,14 +323,16 @@ def main(argv=None):
               f'{row["dropped_stale"]} | {row["cpu_percent_of_one_core"]:.1f} |')
     if args.rigs:
         print()
-        print('| rigs | all ready before their drivers | scored window s | '
-              'pairs published in it | pairs lost | stale pairs dropped by the matchers (run) | '
-              'lowest published rate Hz | held | CPU % of one core |')
-        print('|---|---|---|---|---|---|---|---|---|')
+        print('| rigs | all ready before their drivers | replays end within s | '
+              'scored window s | pairs published in it | pairs lost | '
+              'stale pairs dropped by the matchers (run) | lowest published rate Hz | held | '
+              'CPU % of one core |')
+        print('|---|---|---|---|---|---|---|---|---|---|')
         largest = 0
         for count in range(args.rigs_from, args.rigs + 1):
             row = many_rigs(count, min(args.seconds, 15.0))
-            print(f'| {count} | {"yes" if row["ready"] else "no"} | {row["window_s"]:.1f} | '
+            print(f'| {count} | {"yes" if row["ready"] else "no"} | '
+                  f'{row["end_spread_s"]:.2f} | {row["window_s"]:.1f} | '
                   f'{row["published"]} | {row["lost"]} | {row["dropped_stale"]} | '
                   f'{row["lowest_rate_hz"]:.2f} | {"yes" if row["held"] else "no"} | '
                   f'{row["cpu_percent_of_one_core"]:.1f} |', flush=True)
