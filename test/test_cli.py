@@ -142,3 +142,19 @@ def test_rig_losses_count_pairs_without_a_cloud_in_the_window_and_late_rigs():
     silent = monitor(raw, [], None)                # never produced a cloud
     assert rig_losses([good, lossy, late, silent], (10.05, 11.0)) == \
         [(3, 0), (3, 1), (3, 3), (3, 3)]
+
+
+def test_a_rig_whose_replay_stopped_early_is_counted():
+    # Would catch: a driver that died 9 s into a 15 s replay pulling the rigs' common window
+    # in with it, and the run held (a review's fake rigs).
+    import types
+    from st_stereo.tools.latency_bench import replays_stopped_early
+
+    def monitor(first, last):
+        return types.SimpleNamespace(raw_received={} if first is None else
+                                     {(0, 0): first, (1, 0): (first + last) / 2, (2, 0): last})
+
+    full, died, silent = monitor(100.0, 114.8), monitor(100.4, 109.4), monitor(None, None)
+    assert replays_stopped_early([full, monitor(101.0, 115.9)], 15.0) == 0
+    assert replays_stopped_early([full, died], 15.0) == 1
+    assert replays_stopped_early([full, died, silent], 15.0) == 2

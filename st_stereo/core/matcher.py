@@ -9,6 +9,7 @@ the stage and the reason it was dropped.
 
 import csv
 import dataclasses
+import functools
 import io
 import json
 import time
@@ -432,15 +433,33 @@ def valid_interior(valid, shape, margin, name):
 
 
 def fill_invalid(image, valid):
-    """Copy of ``image`` with invalid pixels set to their nearest valid pixel's value."""
+    """
+    Copy of ``image`` with invalid pixels set to their nearest valid pixel's value.
+
+    The nearest pixels of a mask are computed once and kept (``_nearest_valid``): a rig's
+    mask is the same for every pair of a calibration, and each pair fills up to four images.
+    """
     if valid is None:
         return image
     valid = np.asarray(valid, dtype=bool)
+    if valid.shape != np.shape(image):
+        raise ValueError(f'valid mask: expected the shape of the image, {np.shape(image)}, got '
+                         f'{valid.shape}')
     if valid.all() or not valid.any():
         return image
+    rows, cols = _nearest_valid(np.packbits(valid).tobytes(), valid.shape)
+    return np.asarray(image)[rows, cols]
+
+
+@functools.lru_cache(maxsize=8)
+def _nearest_valid(packed_mask, shape):
     from scipy import ndimage
+    valid = np.unpackbits(np.frombuffer(packed_mask, dtype=np.uint8),
+                          count=shape[0] * shape[1]).reshape(shape).astype(bool)
     _, (rows, cols) = ndimage.distance_transform_edt(~valid, return_indices=True)
-    return image[rows, cols]
+    rows.setflags(write=False)
+    cols.setflags(write=False)
+    return rows, cols
 
 
 def _elapsed_ms(start):

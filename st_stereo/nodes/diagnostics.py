@@ -75,10 +75,15 @@ def status_name(node, task):
     """
     Name a node's diagnostic status ``'<namespace>/<node>: <task>'``, namespace without '/'.
 
-    diagnostic_updater names a status ``'<node>: <task>'``; in the default namespace this is
-    the same name. Under a namespace (several rigs on one machine, ``/rig1``, ``/rig2``, ...)
-    the namespace tells the rigs' statuses apart on the one ``/diagnostics`` topic, where an
-    aggregator or a monitor would otherwise see N identical names.
+    ROS 2's diagnostic_updater names a status ``'<node>: <task>'`` (the node's name without
+    its namespace), as these nodes did before 2026-12-07; in the root namespace the two are
+    the same, under the suite's default ``/stereo`` this is ``'stereo/matcher: ST
+    matching'``. With several rigs on one machine (``/rig1``, ``/rig2``, ...) the namespace
+    tells their statuses apart on the one ``/diagnostics`` topic, where an aggregator (which
+    keys its items by name) or a monitor would otherwise see N identical names (ros/diagnostics
+    issue 318 asks the same of diagnostic_updater). An aggregator's analyzers match these
+    names with ``startswith: ['stereo/']`` or a regex; the robot monitor shows the namespace
+    as a level of its tree.
     """
     return f'{node.get_fully_qualified_name().lstrip("/")}: {task}'
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.config import STConfig
-from st_stereo.core.matcher import StereoMatcher
+from st_stereo.core.matcher import fill_invalid, StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
 from st_stereo.core.skew import compensation_options, SkewCompensator
 from st_stereo.core.temporal import TemporalCheck
@@ -74,7 +74,9 @@ class PairMatching:
                                        **self.rectifier.valid_keywords(),
                                        **compensation_options(self.config))
         if self.temporal is not None:
-            result = self.temporal.check(result, left, left_time_s, self.rectifier.model)
+            result = self.temporal.check(
+                result, fill_invalid(left, self.rectifier.valid_keywords()['left_valid']),
+                left_time_s, self.rectifier.model)
         return result
 
 

@@ -234,6 +234,22 @@ def rig_losses(monitors, window):
     return rows
 
 
+REPLAY_SHORTFALL_S = 1.5   # a rig's replay this much shorter than asked: it stopped early
+
+
+def replays_stopped_early(monitors, seconds):
+    """
+    Count the rigs whose replay stopped early.
+
+    No image, or images over a span shorter than ``seconds - REPLAY_SHORTFALL_S``: such a rig
+    (a driver that died or stalled) would pull the common window's end in with it
+    (``many_rigs``) and hide its own failure.
+    """
+    return sum(not m.raw_received or max(m.raw_received.values()) -
+               min(m.raw_received.values()) < seconds - REPLAY_SHORTFALL_S
+               for m in monitors)
+
+
 def many_rigs(count, seconds, warmup_s=2.0):
     """
     Run ``count`` rigs on this machine, each three processes replaying the bundled recording.
@@ -245,7 +261,9 @@ def many_rigs(count, seconds, warmup_s=2.0):
     pair it published in the window came back as a cloud and it published at least 90 % of
     the cameras' unique frame rate there (a starved driver, or a monitor that missed images,
     is not held either); the window must last 3 s at least. A rig without any cloud is not
-    held. The CPU is that of the window. ``end_spread_s``: how far apart the replays ended.
+    held. The CPU is that of the window. ``end_spread_s``: how far apart the replays ended;
+    ``stopped_early``: rigs whose replay lasted ``REPLAY_SHORTFALL_S`` less than ``seconds``
+    (a driver that died or stalled), which are not held either.
     ``dropped_stale``: the pairs the matchers dropped as stale over the whole run (their
     diagnostics), which tells a busy matcher from a loss in transport.
     """
@@ -278,13 +296,15 @@ def many_rigs(count, seconds, warmup_s=2.0):
     length = max(window[1] - window[0], 1e-9)
     losses = rig_losses(monitors, window)
     lowest_rate = min(published / length for published, _ in losses)
+    stopped_early = replays_stopped_early(monitors, seconds)
     held = length > 3.0 and not any(lost for _, lost in losses) and \
-        lowest_rate >= 0.9 * UNIQUE_FRAME_HZ
+        lowest_rate >= 0.9 * UNIQUE_FRAME_HZ and not stopped_early
     # The matchers' own count of pairs they dropped as stale (keep_latest: busy when a newer
     # pair came), from each rig's last diagnostics: the whole run, not only the window.
     stale = [monitor.matcher_values.get('pairs dropped_stale') for monitor in monitors]
     return {'rigs': count, 'window_s': length, 'ready': ready,
             'end_spread_s': max(ends) - min(ends) if ends else float('nan'),
+            'stopped_early': stopped_early,
             'dropped_stale': sum(int(v) for v in stale) if None not in stale else 'n/a',
             'published': sum(p for p, _ in losses), 'lost': sum(lost for _, lost in losses),
             'lowest_rate_hz': lowest_rate, 'held': held,
@@ -323,15 +343,16 @@ def main(argv=None):
               f'{row["dropped_stale"]} | {row["cpu_percent_of_one_core"]:.1f} |')
     if args.rigs:
         print()
-        print('| rigs | all ready before their drivers | replays end within s | '
+        print('| rigs | all ready before their drivers | replays stopped early | '
+              'replays end within s | '
               'scored window s | pairs published in it | pairs lost | '
               'stale pairs dropped by the matchers (run) | lowest published rate Hz | held | '
               'CPU % of one core |')
-        print('|---|---|---|---|---|---|---|---|---|---|')
+        print('|---|---|---|---|---|---|---|---|---|---|---|')
         largest = 0
         for count in range(args.rigs_from, args.rigs + 1):
             row = many_rigs(count, min(args.seconds, 15.0))
-            print(f'| {count} | {"yes" if row["ready"] else "no"} | '
+            print(f'| {count} | {"yes" if row["ready"] else "no"} | {row["stopped_early"]} | '
                   f'{row["end_spread_s"]:.2f} | {row["window_s"]:.1f} | '
                   f'{row["published"]} | {row["lost"]} | {row["dropped_stale"]} | '
                   f'{row["lowest_rate_hz"]:.2f} | {"yes" if row["held"] else "no"} | '
