@@ -146,7 +146,9 @@ def test_rig_losses_count_pairs_without_a_cloud_in_the_window_and_late_rigs():
 
 def test_a_rig_whose_replay_stopped_early_is_counted():
     # Would catch: a driver that died 9 s into a 15 s replay pulling the rigs' common window
-    # in with it, and the run held (a review's fake rigs).
+    # in with it, and the run held (a review's fake rigs); and, the other way, rigs whose
+    # drivers started up to 3 s apart, or whose first images went out before discovery,
+    # taken for stopped.
     import types
     from st_stereo.tools.latency_bench import replays_stopped_early
 
@@ -154,7 +156,8 @@ def test_a_rig_whose_replay_stopped_early_is_counted():
         return types.SimpleNamespace(raw_received={} if first is None else
                                      {(0, 0): first, (1, 0): (first + last) / 2, (2, 0): last})
 
-    full, died, silent = monitor(100.0, 114.8), monitor(100.4, 109.4), monitor(None, None)
-    assert replays_stopped_early([full, monitor(101.0, 115.9)], 15.0) == 0
-    assert replays_stopped_early([full, died], 15.0) == 1
-    assert replays_stopped_early([full, died, silent], 15.0) == 2
+    full, late, died = monitor(100.0, 114.9), monitor(104.0, 118.8), monitor(100.4, 109.4)
+    undiscovered = monitor(102.2, 114.9)           # its first 2.2 s went out unmatched
+    assert replays_stopped_early([full, late, undiscovered], 15.0) == 0
+    assert replays_stopped_early([full, late, died], 15.0) == 1
+    assert replays_stopped_early([full, died, monitor(None, None)], 15.0) == 2
