@@ -6,7 +6,7 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .c
 
 import os
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 from rclpy.node import Node
@@ -35,6 +35,34 @@ class Collector(Node):
 
 
 @pytest.mark.timeout(180)
+@pytest.mark.timeout(120)
+def test_a_camera_with_agc_on_is_a_warning_naming_it(ros, monkeypatch):
+    # With AGC on a Lepton sends 8-bit values in the 16-bit words: not the 14-bit counts
+    # everything downstream assumes. Its telemetry says so; the driver says it too.
+    import functools
+    import st_stereo.lepton.simulator as simulator
+    monkeypatch.setattr(simulator, 'LeptonSimulator',
+                        functools.partial(simulator.LeptonSimulator, agc=True))
+    context, executor, add = ros
+    statuses = {}
+
+    def keep(msg):
+        for status in msg.status:
+            statuses[status.name] = (status.level, status.message,
+                                     {kv.key: kv.value for kv in status.values})
+
+    add(Node('statuses', context=context)).create_subscription(DiagnosticArray, '/diagnostics',
+                                                               keep, 10)
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('duration', value=3.0), Parameter('telemetry', value='footer')]))
+    spin_until(executor, lambda: 'AGC' in statuses.get(
+        'stereo/lepton_driver: left camera', (0, '', {}))[2], 30.0)
+    level, message, values = statuses['stereo/lepton_driver: left camera']
+    assert values['AGC'] == 'on' and level == DiagnosticStatus.WARN
+    assert message.startswith('AGC on: 8-bit values') and '0x0100' in message
+    assert driver.published > 0
+
+
 def test_simulated_rig_end_to_end(ros):
     context, executor, add = ros
     # Subscribers first: the driver publishes from the moment it exists.
@@ -66,6 +94,7 @@ def test_simulated_rig_end_to_end(ros):
     camera = collector.statuses['stereo/lepton_driver: left camera']
     for key in ('crc_errors', 'gaps', 'resyncs', 'FPA temperature (K)', 'FFC state'):
         assert key in camera
+    assert camera['AGC'] == 'off'
     matching = collector.statuses['stereo/matcher: ST matching']
     for key in ('features', 'matches', 'rejected_left_right', 'rejected_subpixel_range',
                 'time total (ms)', 'latency from stamp, node clock, median (ms)',

@@ -35,7 +35,7 @@ from sensor_msgs.srv import SetCameraInfo
 from st_stereo.core.calibration.files import calibration_from_camera_info, \
     load_calibration, save_calibration
 from st_stereo.lepton.assembler import LeptonCounters
-from st_stereo.lepton.cci import CciError
+from st_stereo.lepton.cci import CciError, CMD_AGC_ENABLE
 from st_stereo.lepton.packets import UNIQUE_FRAME_HZ
 from st_stereo.lepton.pairing import pair_ffc_from_values, pair_info_values, PairFfcFlags, \
     PairSynchronizer, SKEW_KEY
@@ -487,6 +487,7 @@ class DriverNode(Node):
             counters['FPA temperature (K)'] = telemetry.fpa_temperature_k
             counters['housing temperature (K)'] = telemetry.housing_temperature_k
             counters['FFC state'] = telemetry.ffc_state
+            counters['AGC'] = 'on' if telemetry.agc_enabled else 'off'
         rate = self.camera_rates[index].frequency(now)
         counters['unique frames per second'] = round(rate, 3)
         lost = counters['frames_aborted'] + counters['timeouts']
@@ -505,6 +506,13 @@ class DriverNode(Node):
             summary = f'{counters["unique_frames"]} frames, {lost} lost' + \
                 (f' ({recent} in the last second)' if recent else '')
         self._lost_reported[index] = lost
+        if telemetry is not None and telemetry.agc_enabled and level == diagnostics.OK:
+            # The camera's AGC maps the scene to 8 bits: no longer the 14-bit counts that the
+            # rectifier's 0 marker, the matcher's noise model and the people stage's warm
+            # margin (counts above the background) assume. Said, not refused: the user's call.
+            level = diagnostics.WARN
+            summary = 'AGC on: 8-bit values, not the 14-bit counts ST expects (disable it ' \
+                f'through the CCI: AGC Enable, 0x{CMD_AGC_ENABLE:04X}); ' + summary
         return diagnostics.status(diagnostics.status_name(self, f'{side} camera'), hardware,
                                   level, summary, counters)
 
