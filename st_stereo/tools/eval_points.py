@@ -67,16 +67,15 @@ class PairMatching:
     def match(self, left_raw, right_raw, left_time_s, skew_s):
         """Return the pair's MatchResult, skew-corrected and checked as configured."""
         left, right = self.rectifier.rectify(left_raw, right_raw)
-        result = self.matcher.match(left, right, **self.rectifier.valid_keywords())
+        valid = self.rectifier.valid_keywords()
+        result = self.matcher.match(left, right, **valid)
         if self.config.skew_compensation:
             result = self.skew.correct(result, left, left_time_s, skew_s, self.rectifier.model,
-                                       self.matcher.disparity_bounds(), right=right,
-                                       **self.rectifier.valid_keywords(),
+                                       self.matcher.disparity_bounds(), right=right, **valid,
                                        **compensation_options(self.config))
         if self.temporal is not None:
-            result = self.temporal.check(
-                result, fill_invalid(left, self.rectifier.valid_keywords()['left_valid']),
-                left_time_s, self.rectifier.model)
+            result = self.temporal.check(result, fill_invalid(left, valid['left_valid']),
+                                         left_time_s, self.rectifier.model)
         return result
 
 
