@@ -194,8 +194,16 @@ class SubpixelResult:
 
 
 def extract_windows(image, y, x, size):
-    """Gather ``size x size`` windows of an image centred at integer (y, x), shape (n, W, W)."""
+    """
+    Gather ``size x size`` windows of an image centred at integer (y, x), shape (n, W, W).
+
+    Every window must lie inside the image (a negative index would wrap round silently).
+    """
     half = size // 2
+    if len(y) and (min(np.min(y), np.min(x)) < half or np.max(y) >= image.shape[0] - half
+                   or np.max(x) >= image.shape[1] - half):
+        raise ValueError(f'extract_windows: a {size}x{size} window leaves the '
+                         f'{image.shape[1]}x{image.shape[0]} image')
     blocks = np.lib.stride_tricks.sliding_window_view(image, (size, size))
     return blocks[y - half, x - half]
 
