@@ -6,10 +6,9 @@ import pytest
 
 from st_stereo.core import STConfig, StereoMatcher, StereoModel
 from st_stereo.core.fourier import fourier_shift_image_x
-from st_stereo.core.image_io import read_thermal_image, resize_area
 from st_stereo.core.matcher import PUBLISH_REJECTION_KEYS
 from st_stereo.core.rough_matching import REJECTION_KEYS
-from st_stereo.core.subpixel import extract_windows, SUBPIXEL_REJECTION_KEYS
+from st_stereo.core.subpixel import SUBPIXEL_REJECTION_KEYS
 
 
 @settings(max_examples=12, deadline=None)
@@ -118,65 +117,3 @@ def test_monogenic_and_paper_configurations_run(people_80x60):
         result = StereoMatcher(config).match(people_80x60, right)
         inside = result.x_left - 10.5 >= 4
         assert np.mean(np.abs(result.disparity[inside] - 10.5) <= 0.5) > 0.9
-
-
-def _cropped_pair(image, shift):
-    """Return an 80x60 pair cut from a wider view: real image content beyond every border."""
-    wide = resize_area(image, 100, 76)
-    # Symmetric padding makes the Fourier shift's periodic extension continuous (no ringing).
-    padded = np.pad(wide, ((0, 0), (40, 40)), mode='symmetric')
-    return wide[8:68, 10:90], fourier_shift_image_x(padded, shift)[8:68, 50:130]
-
-
-@pytest.mark.parametrize('shift', [2.6, 6.3, 9.4])
-def test_features_in_the_top_rows_are_matched_with_their_windows_moved_down(
-        thermal_dir, shift):
-    left, right = _cropped_pair(read_thermal_image(thermal_dir / 'people_lab_180x180.png'),
-                                shift)
-    dropped = StereoMatcher().match(left, right)
-    assert dropped.y.min() >= 4
-    assert dropped.counts['features_top_window_moved'] == 0
-    moved = StereoMatcher(STConfig(top_window_shift=4)).match(left, right)
-    top = moved.y < 4
-    assert top.sum() > 8
-    assert moved.counts['features_border'] < dropped.counts['features_border']
-    assert moved.counts['features_top_window_moved'] >= top.sum()
-    # The other borders still drop their features (their windows do not fit).
-    assert moved.y.max() < 56 and moved.x_left.max() < 76
-    assert (moved.x_left - moved.disparity).min() > 2.5
-    # A uniform shift: the moved windows measure it within a quarter pixel, less well than
-    # the interior (0.01 px median): a moved window is centred off its feature, on whatever
-    # texture lies there (on this frame 0.03-0.06 px median, at most 0.155 px).
-    errors = np.abs(moved.disparity[top] - shift)
-    assert np.median(errors) < 0.08
-    assert errors.max() < 0.25
-    # The rest keeps its matches and disparities (the continuity constraint's
-    # neighbourhoods gain the top rows' features: a few rough matches may move).
-    same = {(y, x): d for y, x, d in zip(dropped.y, dropped.x_left, dropped.disparity)}
-    change = np.array([abs(d - same[y, x]) for y, x, d in
-                       zip(moved.y, moved.x_left, moved.disparity) if (y, x) in same])
-    assert len(change) >= 0.98 * len(dropped)
-    assert np.mean(change < 1e-9) > 0.97
-    assert change.max() < 0.2
-
-
-def test_a_top_feature_placed_at_its_structure_stays_in_the_image(people_80x60):
-    right = fourier_shift_image_x(people_80x60, 5.5)
-    config = STConfig(top_window_shift=4, point_location='structure')
-    result = StereoMatcher(config, model=StereoModel.default_lepton_rig()).match(people_80x60,
-                                                                                 right)
-    assert (result.y < 4).any()
-    assert result.y_point.min() >= 0
-    assert np.isfinite(result.points).all()
-
-
-def test_a_top_window_shift_beyond_half_the_window_is_refused():
-    with pytest.raises(ValueError, match='top_window_shift'):
-        STConfig(top_window_shift=5)
-    with pytest.raises(ValueError, match='top_window_shift'):
-        STConfig(top_window_shift=4, poc_window=7)
-
-
-def test_a_window_leaving_the_image_is_refused():
-    with pytest.raises(ValueError, match='window leaves the 80x60 image'):
-        extract_windows(np.zeros((60, 80)), np.array([3]), np.array([40]), 9)

@@ -188,30 +188,6 @@ def test_legs_are_seen_under_a_cut_body_not_under_a_screen_nor_behind_a_nearer_b
                                     pixels))
 
 
-def test_a_cut_body_whose_points_lie_on_one_outline_stands_on_legs_at_its_silhouette():
-    rig, transform, intrinsics = _rig_geometry()
-    warm, points, pixels = _painted(rig, _legs(-1.0, 4.3))
-    # The points' median 0.45 m aside of the legs (a far body's matches on one outline).
-    aside = Detection(-0.55, 4.3, 1.0, 20, 0.5, np.eye(2) * 0.01, head_visible=False,
-                      cut_top=True)
-    assert legs_fraction(warm, (-0.55, 4.3), transform, intrinsics, points, pixels) < 0.5
-    counts = {}
-    [alone] = standing_on_legs([aside], warm, transform, intrinsics, points, pixels,
-                               counts=counts)
-    assert not alone.legs_seen and counts['cut_legs_at_silhouette'] == 0
-    # Its silhouette's middle (``centred_on_silhouette``) is over the legs: they are seen.
-    centred = dataclasses.replace(aside, across=(-0.45, 0.0))
-    [found] = standing_on_legs([centred], warm, transform, intrinsics, points, pixels,
-                               counts=counts)
-    assert found.legs_seen and counts['cut_legs_at_silhouette'] == 1
-    assert (found.x, found.y) == (aside.x, aside.y)     # the tracked position is the points'
-    # A middle away from the legs does not lend it any.
-    elsewhere = dataclasses.replace(aside, across=(0.45, 0.0))
-    [none] = standing_on_legs([elsewhere], warm, transform, intrinsics, points, pixels,
-                              counts=counts)
-    assert not none.legs_seen and counts['cut_legs_at_silhouette'] == 1
-
-
 def test_a_warm_computer_under_a_screen_is_not_legs_under_a_body():
     rig, transform, intrinsics = _rig_geometry()
     # A computer on the floor under a desk (top 0.70-0.74 m, cool) with a screen on it, both
@@ -1000,7 +976,7 @@ def test_one_pair_of_legs_holds_up_one_body_and_what_is_not_checked_is_counted()
     assert [d.legs_seen for d in marked] == [True, False, False]
     assert counts == {'cut_legs_checked': 2, 'cut_legs_seen': 1, 'cut_legs_out_of_image': 1,
                       'cut_legs_fragment': 1, 'cut_legs_gap': 0, 'cut_legs_wide': 0,
-                      'cut_legs_at_silhouette': 0, 'head_legs_checked': 0,
+                      'head_legs_checked': 0,
                       'head_legs_seen': 0}
     assert standing_on_legs([fragment], warm, transform, intrinsics, points,
                             pixels)[0].legs_seen

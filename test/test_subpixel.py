@@ -8,7 +8,7 @@ import pytest
 
 from st_stereo.core.config import STConfig
 from st_stereo.core.fourier import fourier_shift_image_x
-from st_stereo.core.subpixel import (half_sample_hann, nagashima_peak_offset,
+from st_stereo.core.subpixel import (extract_windows, half_sample_hann, nagashima_peak_offset,
                                      phase_only_correlation, refine_subpixel_poc)
 
 
@@ -92,3 +92,12 @@ def test_takita_band_limit_runs_and_stays_close(people_80x60):
     config = dataclasses.replace(STConfig(), poc_band='takita')
     result = refine_subpixel_poc(people_80x60, right, y, x, np.full(3, 8), config)
     assert np.all(np.abs(result.disparity[result.accepted] - 8.4) < 0.3)
+
+
+@pytest.mark.parametrize('y, x', [(3, 40), (56, 40), (30, 3), (30, 76)])
+def test_a_window_leaving_the_image_is_refused(y, x):
+    image = np.zeros((60, 80))
+    with pytest.raises(ValueError, match='window leaves the 80x60 image'):
+        extract_windows(image, np.array([30, y]), np.array([40, x]), 9)
+    # Touching the border is inside.
+    assert extract_windows(image, np.array([4, 55]), np.array([4, 75]), 9).shape == (2, 9, 9)

@@ -104,15 +104,6 @@ class STConfig:
                                 choices=('nagashima', 'recentred'))
     poc_iterations: int = _field(3, "fits of the recentred estimator (1 = the paper's)",
                                  low=1, high=10)
-    top_window_shift: int = _field(
-        0, 'a feature in the top rows, nearer the top border than half the POC window (the '
-        "far end of a ceiling rig's view, where far people's heads leave the image), is "
-        'matched with its POC windows moved down by up to this many pixels (the same move in '
-        'both images: the disparity is that of the moved window); 0, the default: such '
-        'features are dropped (features_border), as at the other borders always. 4 gives '
-        '10-44 % more correct points but more 3-D outliers, and the people stage, tuned '
-        'without them, loses a far person and gains a false one (docs/results.md)',
-        low=0, high=31)
     poc_max_shift: float = _field(2.0, 'reject a sub-pixel correction larger than this, pixels '
                                   '(2 measured best: it keeps rough matches 1.5 px off)',
                                   low=0.1, high=2.5)
@@ -199,9 +190,6 @@ class STConfig:
         if self.disparity_min > self.disparity_max:
             raise ValueError(f'disparity_min ({self.disparity_min}) must not exceed '
                              f'disparity_max ({self.disparity_max})')
-        if self.top_window_shift > self.poc_window // 2:
-            raise ValueError(f'top_window_shift ({self.top_window_shift}) must not exceed '
-                             f'half the POC window ({self.poc_window // 2})')
         if self.min_range_m >= self.max_range_m:
             raise ValueError(f'min_range_m ({self.min_range_m}) must be less than max_range_m '
                              f'({self.max_range_m})')

@@ -58,12 +58,9 @@ def validate_image(image, name):
     return array
 
 
-def feature_mask(moments, gamma, margin, top_margin=None):
+def feature_mask(moments, gamma, margin):
     """
     Features: pixels with ``M > gamma`` (paper 2.2) whose window of half-side ``margin`` fits.
-
-    ``top_margin`` (default ``margin``): the rows kept from the top border instead, for
-    windows moved down (``top_window_shift``).
 
     Returns
     -------
@@ -74,8 +71,7 @@ def feature_mask(moments, gamma, margin, top_margin=None):
     """
     above = moments > gamma
     inside = np.zeros_like(above)
-    top = margin if top_margin is None else top_margin
-    inside[top:moments.shape[0] - margin, margin:moments.shape[1] - margin] = True
+    inside[margin:moments.shape[0] - margin, margin:moments.shape[1] - margin] = True
     features = above & inside
     return features, int(above.sum() - features.sum())
 
@@ -88,8 +84,7 @@ class MatchResult:
     Attributes
     ----------
     x_left, y : ndarray, shape (n,)
-        Left pixel of each match (integer coordinates): the feature, its windows' centre
-        (but in the top rows with ``top_window_shift``: the windows moved down to fit).
+        Left pixel of each match (integer coordinates): the feature, its windows' centre.
     x_point, y_point : ndarray, shape (n,)
         Sub-pixel left pixel the match's point is triangulated from (``point_location``:
         where its window's horizontal structure lies, ``st_stereo.core.point_location``;
@@ -282,9 +277,7 @@ class StereoMatcher:
 
         tick = time.perf_counter()
         moments = self.feature_images(left, right)
-        # Within ``margin`` of the top border a window fits only moved down.
-        features, border = feature_mask(moments[0], config.gamma, margin,
-                                        margin - config.top_window_shift)
+        features, border = feature_mask(moments[0], config.gamma, margin)
         if left_inside is not None:
             counts['features_invalid_region'] = int((features & ~left_inside).sum())
             features &= left_inside
@@ -306,9 +299,7 @@ class StereoMatcher:
             poc_left, poc_right = moments[0], moments[1]
         else:
             poc_left, poc_right = left, right
-        window_y = np.maximum(rough.y, margin)
-        counts['features_top_window_moved'] = int((window_y != rough.y).sum())
-        refined = refine_subpixel_poc(poc_left, poc_right, window_y, rough.x_left,
+        refined = refine_subpixel_poc(poc_left, poc_right, rough.y, rough.x_left,
                                       rough.disparity, config)
         counts.update({f'rejected_{key}': refined.rejected[key]
                        for key in SUBPIXEL_REJECTION_KEYS})
@@ -350,10 +341,8 @@ class StereoMatcher:
         disparity = refined.disparity[keep]
         x_point, y_point = x_left.astype(np.float64), y.astype(np.float64)
         if config.point_location == 'structure':
-            # The structure of the window the disparity came from (moved down at the top).
-            centre_y = window_y[keep]
-            dx, dy = structure_offsets(poc_left, centre_y, x_left, config.poc_window)
-            x_point, y_point = x_point + dx, centre_y + dy
+            dx, dy = structure_offsets(poc_left, y, x_left, config.poc_window)
+            x_point, y_point = x_point + dx, y_point + dy
         points = None
         if self.model is not None:
             points = triangulate(self.model, x_point, y_point, disparity)

@@ -927,8 +927,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     config = config or PeopleConfig()
     counts = {} if counts is None else counts
     for key in ('cut_legs_checked', 'cut_legs_seen', 'cut_legs_out_of_image',
-                'cut_legs_fragment', 'cut_legs_gap', 'cut_legs_wide', 'cut_legs_at_silhouette',
-                'head_legs_checked', 'head_legs_seen'):
+                'cut_legs_fragment', 'cut_legs_gap', 'cut_legs_wide', 'head_legs_checked',
+                'head_legs_seen'):
         counts.setdefault(key, 0)
     standing, out = [], []
     for detection in detections:
@@ -948,26 +948,18 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
                for x, y in standing):
             counts['cut_legs_fragment'] += 1
         else:
-            at = (detection.x, detection.y)
-            fraction = legs_fraction(warm, at, transform, intrinsics, points, pixels, config)
+            fraction = legs_fraction(warm, (detection.x, detection.y), transform, intrinsics,
+                                     points, pixels, config)
             counts['cut_legs_checked'] += 1
-            if not fraction >= config.legs_min_fraction and any(detection.across):
-                # The points lie mostly on one outline; the silhouette's middle is the body's.
-                middle = (detection.x + detection.across[0], detection.y + detection.across[1])
-                centred = legs_fraction(warm, middle, transform, intrinsics, points, pixels,
-                                        config)
-                if centred >= config.legs_min_fraction:
-                    counts['cut_legs_at_silhouette'] += 1
-                    at, fraction = middle, centred
             if math.isnan(fraction):
                 counts['cut_legs_out_of_image'] += 1
             elif fraction >= config.legs_min_fraction and detection.legs_only and not \
-                    warm_run_width_m(warm, at, transform, intrinsics,
+                    warm_run_width_m(warm, (detection.x, detection.y), transform, intrinsics,
                                      config) <= config.far_legs_max_width_m:
                 # (NaN: no warm row, or a run off the image's side: the width is unknown)
                 counts['cut_legs_wide'] += 1
             elif fraction >= config.legs_min_fraction and not warm_column_gap_m(
-                    warm, at, transform, intrinsics, points, pixels,
+                    warm, (detection.x, detection.y), transform, intrinsics, points, pixels,
                     config) <= config.legs_max_gap_m:
                 counts['cut_legs_gap'] += 1     # (NaN, no row in view: no legs either)
             elif fraction >= config.legs_min_fraction:
@@ -2087,20 +2079,19 @@ class PeopleEstimator:
         else:       # nothing tells a far body's legs from a low warm thing
             self.counts['legs_only_not_checked'] += sum(d.legs_only for d in detections)
             detections = [d for d in detections if not d.legs_only]
-        if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
-            # Before the legs tests, which take a cut body's legs at its silhouette's middle
-            # when they are not at its points' median.
-            detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
-                                               points[keep], pixels, self.counts,
-                                               self.background.valid)
-        elif self.config.centre_on_silhouette:     # no image or camera matrix: the points'
-            self.counts['silhouette_not_checked'] += len(detections)
         if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
             detections = standing_on_legs(detections, warm, self.transform, intrinsics,
                                           points[keep], pixels, self.config, self.counts,
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
+        if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
+            # After the legs tests: their windows were chosen around the points' median.
+            detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
+                                               points[keep], pixels, self.counts,
+                                               self.background.valid)
+        elif self.config.centre_on_silhouette:     # no image or camera matrix: the points'
+            self.counts['silhouette_not_checked'] += len(detections)
         if warm is not None:
             detections = [self._head_above(d, warm, pixels) for d in detections]
         if self.config.silhouette_margin_counts > 0 and warm is not None:

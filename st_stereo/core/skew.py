@@ -274,16 +274,12 @@ def poc_velocity(frames, camera, left, right, x_left, y, disparity, velocity_x, 
         start = np.rint(window_x - (x_left - disparity)).astype(np.int64)
         sign = -1.0
     second_x = window_x - start
-    # In the top rows both windows move down together, as the matcher's own do
-    # (``top_window_shift``); beyond that move, or at another border, not measured.
-    window_y = np.maximum(y, half)
-    inside = (window_y - y <= config.top_window_shift) & (window_y < rows - half) & \
-        (window_x >= half) & (window_x < cols - half) & \
-        (second_x >= half) & (second_x < cols - half)
+    inside = (window_x >= half) & (window_x < cols - half) & (y >= half) & \
+        (y < rows - half) & (second_x >= half) & (second_x < cols - half)
     index = np.flatnonzero(inside)
     if not len(index):
         return out
-    refined = refine_subpixel_poc(first, second, window_y[index], window_x[index], start[index],
+    refined = refine_subpixel_poc(first, second, y[index], window_x[index], start[index],
                                   config)
     # start + correction, not refined.disparity: that one is clamped at 0 (a stereo disparity
     # cannot be negative; this cross-time one can).
