@@ -812,6 +812,36 @@ def test_a_body_so_far_off_that_only_its_legs_show_is_found_and_a_radiator_is_no
                                        transform, intrinsics))
 
 
+def test_low_warm_points_rising_out_of_view_without_legs_are_no_detection():
+    rig, transform, intrinsics = _rig_geometry()
+
+    def run(bottom):
+        # A warm thing 5.6 m off rising out of the image's top edge, from ``bottom`` up to
+        # 0.9 m, whose image slides across the view by 0.12 m a pair (a radiator's top seen
+        # past a walker who hides more or less of it): 1.3 m in 12 pairs.
+        estimator, frames = PeopleEstimator(transform), []
+        for k in range(12):
+            warm, points, pixels = _painted(rig, _box(-0.2 + 0.12 * k, 0.1 + 0.12 * k, 5.6,
+                                                      bottom, 0.9, 12))
+            found = pixels[:, 1] >= 4.5
+            image = np.full((60, 80), 8000.0)
+            image[warm] += 400.0
+            frames.append(estimator.process(0.115 * k, points[found], pixels[found, 0],
+                                            pixels[found, 1], 0.1 * 84.0 / points[found, 2],
+                                            left_image=image, intrinsics=intrinsics))
+        return estimator.counts, frames
+    # Cool below 0.45 m: no legs. Its legs-only detections used to reach the tracker, whose
+    # track then travelled min_travel_m and was published from the 5th pair.
+    counts, frames = run(0.45)
+    assert counts['legs_only_detections'] == 12 and counts['legs_only_without_legs'] == 12
+    assert not any(d.legs_only for frame in frames for d in frame.detections)
+    assert not any(frame.tracks for frame in frames)
+    # Warm down to 0.3 m, in the legs' rows: it stands on them and is published.
+    counts, frames = run(0.3)
+    assert counts['cut_legs_seen'] == 12 and counts['legs_only_without_legs'] == 0
+    assert all(frame.tracks for frame in frames[1:])
+
+
 def test_the_top_edge_height_is_where_the_simulator_projects_the_top_row():
     rig, transform, intrinsics = _rig_geometry()
     p1 = rig.rectification()[2]

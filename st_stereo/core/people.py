@@ -66,8 +66,8 @@ class PeopleConfig:
         'the floor there: 5.1-6.5 m away for a rig 2.9 m high looking 40 deg down): warm '
         'points from this height up to min_point_height_m, away from every other detection, '
         'make a detection when their warm region reaches the top row; it must stand on its '
-        'legs, no wider than far_legs_max_width_m; 0: off (needs the image and camera '
-        'matrix), m')
+        'legs, no wider than far_legs_max_width_m, or it is dropped (legs_only_without_legs); '
+        '0: off (needs the image and camera matrix), m')
     far_legs_max_width_m: float = _field(
         0.7, 'such a legs-only body is a person only if the warm run across its legs rows is '
         'no wider than this and does not run off the image side (a radiator), m')
@@ -2013,6 +2013,7 @@ class PeopleEstimator:
                        'cut_legs_wide': 0, 'head_legs_checked': 0, 'head_legs_seen': 0,
                        'legs_only_detections': 0, 'legs_only_below_top': 0,
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
+                       'legs_only_without_legs': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
                        'silhouette_shared': 0, 'silhouette_not_checked': 0,
                        'head_above_detections': 0, 'silhouettes': 0, 'silhouette_covered': 0,
@@ -2085,6 +2086,11 @@ class PeopleEstimator:
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
+        # Low warm points rising out of view are a far body only on its legs: without them, a
+        # radiator's top beside a nearer walker (far_walker) made a track that travelled.
+        standing = [not d.legs_only or d.legs_seen for d in detections]
+        self.counts['legs_only_without_legs'] += standing.count(False)
+        detections = [d for d, kept in zip(detections, standing) if kept]
         if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
             # After the legs tests: their windows were chosen around the points' median.
             detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
