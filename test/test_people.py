@@ -812,34 +812,56 @@ def test_a_body_so_far_off_that_only_its_legs_show_is_found_and_a_radiator_is_no
                                        transform, intrinsics))
 
 
-def test_low_warm_points_rising_out_of_view_without_legs_are_no_detection():
+def _painted_run(scene, pairs, config=None):
+    """Run ``scene(k)`` (world surface samples of pair k) through a PeopleEstimator."""
     rig, transform, intrinsics = _rig_geometry()
+    estimator, frames = PeopleEstimator(transform, config), []
+    for k in range(pairs):
+        warm, points, pixels = _painted(rig, scene(k))
+        found = pixels[:, 1] >= 4.5
+        image = np.full((60, 80), 8000.0)
+        image[warm] += 400.0
+        frames.append(estimator.process(0.115 * k, points[found], pixels[found, 0],
+                                        pixels[found, 1], 0.1 * 84.0 / points[found, 2],
+                                        left_image=image, intrinsics=intrinsics))
+    return estimator, frames
 
-    def run(bottom):
-        # A warm thing 5.6 m off rising out of the image's top edge, from ``bottom`` up to
-        # 0.9 m, whose image slides across the view by 0.12 m a pair (a radiator's top seen
-        # past a walker who hides more or less of it): 1.3 m in 12 pairs.
-        estimator, frames = PeopleEstimator(transform), []
-        for k in range(12):
-            warm, points, pixels = _painted(rig, _box(-0.2 + 0.12 * k, 0.1 + 0.12 * k, 5.6,
-                                                      bottom, 0.9, 12))
-            found = pixels[:, 1] >= 4.5
-            image = np.full((60, 80), 8000.0)
-            image[warm] += 400.0
-            frames.append(estimator.process(0.115 * k, points[found], pixels[found, 0],
-                                            pixels[found, 1], 0.1 * 84.0 / points[found, 2],
-                                            left_image=image, intrinsics=intrinsics))
-        return estimator.counts, frames
-    # Cool below 0.45 m: no legs. Its legs-only detections used to reach the tracker, whose
-    # track then travelled min_travel_m and was published from the 5th pair.
-    counts, frames = run(0.45)
-    assert counts['legs_only_detections'] == 12 and counts['legs_only_without_legs'] == 12
-    assert not any(d.legs_only for frame in frames for d in frame.detections)
+
+def test_low_warm_points_rising_out_of_view_start_a_track_only_on_legs():
+    # A warm thing 5.6 m off rising out of the image's top edge, from ``bottom`` up to 0.9 m,
+    # whose image slides across the view by 0.12 m a pair (a radiator's top seen past a
+    # walker who hides more or less of it): 1.3 m in 12 pairs.
+    def sliding(bottom):
+        return lambda k: _box(-0.2 + 0.12 * k, 0.1 + 0.12 * k, 5.6, bottom, 0.9, 12)
+    # Cool below 0.45 m: no legs. Its legs-only detections used to build a track that
+    # travelled min_travel_m and was published from the 5th pair; they start none now.
+    estimator, frames = _painted_run(sliding(0.45), 12)
+    assert estimator.counts['legs_only_detections'] == 12
+    assert estimator.counts['cut_legs_seen'] == 0
+    assert estimator.tracker.counts['legs_only_not_started'] == 12
     assert not any(frame.tracks for frame in frames)
     # Warm down to 0.3 m, in the legs' rows: it stands on them and is published.
-    counts, frames = run(0.3)
-    assert counts['cut_legs_seen'] == 12 and counts['legs_only_without_legs'] == 0
+    estimator, frames = _painted_run(sliding(0.3), 12)
+    assert estimator.counts['cut_legs_seen'] == 12
+    assert estimator.tracker.counts['legs_only_not_started'] == 0
     assert all(frame.tracks for frame in frames[1:])
+
+
+def test_a_published_far_person_whose_legs_are_hidden_a_while_keeps_the_id():
+    def standing(hidden):
+        # Only the legs show (5.6 m off); in the ``hidden`` pairs their lower part is cool (a
+        # chair in front): the legs-only detection continues the published track.
+        return lambda k: _legs(0.4, 5.6, top=1.2)[
+            _legs(0.4, 5.6, top=1.2)[:, 2] >= (0.45 if k in hidden else 0.0)]
+    estimator, frames = _painted_run(standing(set(range(10, 30))), 40)
+    assert estimator.counts['cut_legs_seen'] == 20
+    ids = [[t.track_id for t in frame.tracks] for frame in frames]
+    assert ids[1:] == [[1]] * 39
+    # With the legs test off (legs_min_fraction 0) nothing tells legs from a low warm thing:
+    # legs-only bodies are not kept, and counted.
+    estimator, frames = _painted_run(standing(set()), 5, PeopleConfig(legs_min_fraction=0.0))
+    assert estimator.counts['legs_only_not_checked'] == 5
+    assert not any(frame.tracks or frame.detections for frame in frames)
 
 
 def test_the_top_edge_height_is_where_the_simulator_projects_the_top_row():

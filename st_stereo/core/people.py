@@ -66,8 +66,9 @@ class PeopleConfig:
         'the floor there: 5.1-6.5 m away for a rig 2.9 m high looking 40 deg down): warm '
         'points from this height up to min_point_height_m, away from every other detection, '
         'make a detection when their warm region reaches the top row; it must stand on its '
-        'legs, no wider than far_legs_max_width_m, or it is dropped (legs_only_without_legs); '
-        '0: off (needs the image and camera matrix), m')
+        'legs, no wider than far_legs_max_width_m, to start a track (without them it may only '
+        'continue a published one: legs_only_not_started); 0: off (needs the image, the '
+        'camera matrix and legs_min_fraction > 0), m')
     far_legs_max_width_m: float = _field(
         0.7, 'such a legs-only body is a person only if the warm run across its legs rows is '
         'no wider than this and does not run off the image side (a radiator), m')
@@ -166,7 +167,8 @@ class PeopleConfig:
         0.5, 'a body cut by the top edge is a person standing on the floor (not a warm object '
         'on a desk) when at least this fraction of the image rows of its legs (0.1-0.5 m above '
         'the floor at its position) hold warm pixels with matches at their depth, in min_hits '
-        'of its last min_hits + 1 detections; 0: never (needs the camera matrix)')
+        'of its last min_hits + 1 detections; 0: never (and no legs-only body, '
+        'far_legs_min_height_m) (needs the camera matrix)')
     legs_depth_tolerance_m: float = _field(
         0.4, 'a row of those legs shows them only if matched points on its warm pixels lie '
         'within this of the depth of the legs (median; else something in front or behind), m')
@@ -908,7 +910,8 @@ def standing_on_legs(detections, warm, transform, intrinsics, points, pixels, co
     0.6 m apart (depth noise, arms), whose leg windows each hold one leg, so a detection
     within twice ``person_radius_m`` of a stronger one standing on legs is that body's
     fragment, left weak (cut, no legs). The price: of two far people standing closer than
-    that, the weaker is published only once it walks ``min_travel_m`` or shows its head.
+    that, the weaker is published only once it walks ``min_travel_m`` or shows its head (a
+    legs-only one, ``detect_people``'s second pass, never: without legs it starts no track).
     A detection on legs whose warm column has a cool stretch longer than ``legs_max_gap_m``
     (``warm_column_gap_m``) is two warm things, not one body, and gets none; nor does a
     legs-only one (``detect_people``) whose warm run across the legs is wider than
@@ -1596,7 +1599,7 @@ class PeopleTracker:
         self.counts = {'started': 0, 'ended': 0, 'unconfirmed_ended': 0, 'assigned': 0,
                        'unassigned_detections': 0, 'time_backwards': 0,
                        'object_detections': 0, 'legs_lapsed': 0, 'shape_lapsed': 0,
-                       'held_beside': 0}
+                       'held_beside': 0, 'legs_only_not_started': 0}
 
     def _predict(self, dt):
         f = np.eye(4)
@@ -1872,6 +1875,13 @@ class PeopleTracker:
                             for i in free])[None, :]
             distance = np.where(cut & (lost | (distance > self.config.gate_m)), np.inf,
                                 distance)
+            if not group[0].confirmed:
+                # Low warm points rising out of view are a far body only on its legs: without
+                # them they may continue a published track (its legs missed in a pair), never
+                # build one (far_walker: a radiator's top beside the walker travelled 1.16 m).
+                unseen = np.array([detections[i].legs_only and not detections[i].legs_seen
+                                   for i in free])[None, :]
+                distance = np.where(unseen, np.inf, distance)
             if group[0].confirmed:
                 # Where a warm object has been, nearer than the track's prediction: the
                 # object's, not a passing published track's (it coasts instead).
@@ -1899,6 +1909,9 @@ class PeopleTracker:
             if index in assigned:
                 continue
             self.counts['unassigned_detections'] += 1
+            if detection.legs_only and not detection.legs_seen:
+                self.counts['legs_only_not_started'] += 1      # (above: no track of them)
+                continue
             covariance = np.zeros((4, 4))
             covariance[:2, :2] = detection.covariance + np.eye(2) * 1e-4
             covariance[2:, 2:] = np.eye(2) * 1.0     # walking speed unknown: 1 m/s sigma
@@ -2013,7 +2026,6 @@ class PeopleEstimator:
                        'cut_legs_wide': 0, 'head_legs_checked': 0, 'head_legs_seen': 0,
                        'legs_only_detections': 0, 'legs_only_below_top': 0,
                        'legs_only_too_far': 0, 'legs_only_not_checked': 0,
-                       'legs_only_without_legs': 0,
                        'silhouette_centred': 0, 'silhouette_not_found': 0,
                        'silhouette_shared': 0, 'silhouette_not_checked': 0,
                        'head_above_detections': 0, 'silhouettes': 0, 'silhouette_covered': 0,
@@ -2074,10 +2086,11 @@ class PeopleEstimator:
             points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
             self.config, pixels, image_shape)
         self.counts['detections'] += len(detections)
-        if warm is not None and intrinsics is not None:
+        if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
             detections = legs_only_bodies(detections, warm, self.transform, intrinsics,
                                           pixels, self.counts)
-        else:       # nothing tells a far body's legs from a low warm thing
+        else:       # nothing tells a far body's legs from a low warm thing (or the legs
+            #         test is off, legs_min_fraction 0: a legs-only body never starts a track)
             self.counts['legs_only_not_checked'] += sum(d.legs_only for d in detections)
             detections = [d for d in detections if not d.legs_only]
         if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
@@ -2086,11 +2099,6 @@ class PeopleEstimator:
                                           self.tracker.predicted_xy(stamp_s))
         else:       # no image or no camera matrix (or the check off): cut bodies must walk
             self.counts['cut_legs_not_checked'] += sum(d.cut_top for d in detections)
-        # Low warm points rising out of view are a far body only on its legs: without them, a
-        # radiator's top beside a nearer walker (far_walker) made a track that travelled.
-        standing = [not d.legs_only or d.legs_seen for d in detections]
-        self.counts['legs_only_without_legs'] += standing.count(False)
-        detections = [d for d, kept in zip(detections, standing) if kept]
         if self.config.centre_on_silhouette and warm is not None and intrinsics is not None:
             # After the legs tests: their windows were chosen around the points' median.
             detections = centred_on_silhouette(detections, warm, self.transform, intrinsics,
