@@ -2086,14 +2086,16 @@ class PeopleEstimator:
             points[keep, 2], None if confidence is None else np.asarray(confidence)[keep],
             self.config, pixels, image_shape)
         self.counts['detections'] += len(detections)
-        if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
+        legs_checked = warm is not None and intrinsics is not None and \
+            self.config.legs_min_fraction > 0
+        if legs_checked:
             detections = legs_only_bodies(detections, warm, self.transform, intrinsics,
                                           pixels, self.counts)
         else:       # nothing tells a far body's legs from a low warm thing (or the legs
             #         test is off, legs_min_fraction 0: a legs-only body never starts a track)
             self.counts['legs_only_not_checked'] += sum(d.legs_only for d in detections)
             detections = [d for d in detections if not d.legs_only]
-        if warm is not None and intrinsics is not None and self.config.legs_min_fraction > 0:
+        if legs_checked:
             detections = standing_on_legs(detections, warm, self.transform, intrinsics,
                                           points[keep], pixels, self.config, self.counts,
                                           self.tracker.predicted_xy(stamp_s))
