@@ -17,14 +17,23 @@ far_standing, far_walker (made for the people stage; walking away from and towar
 each rendered at skews of -55, -40, -25 and -10 ms; matches on people moving faster than
 10 px/s, each compared with the synchronized matching of the same left feature: median of the
 difference, median and p90 of its absolute value (px). Nothing is dropped.
-Run: ``.venv/bin/python docs/experiments/skew_depth_motion.py`` (about ten minutes).
+Also: the same rate with the left camera's acceleration, measured on a third frame (the
+feature tracked from ``t - 2T`` to ``t - T``), removed from ``v_L - v_R`` (the two tracks'
+periods are ``|s|`` apart). ``--start 2`` scores every 4th pair from the third instead of
+the second (the same sequences, other pairs; with the default, the first scored pair's third
+frame lies before the sequence, where the renderer holds each person's first pose).
+Run: ``.venv/bin/python docs/experiments/skew_depth_motion.py [--start 2]`` (about ten
+minutes).
 """
+
+import argparse
 
 import numpy as np
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
-from st_stereo.core.skew import camera_motion, CameraFrames, SkewCompensator
+from st_stereo.core.skew import camera_motion, CameraFrames, feature_motion, \
+    SkewCompensator
 from st_stereo.sim.scoring import match_pixels, people_disparity_errors, PERSON_LABEL_BASE
 from st_stereo.sim.sequences import SequenceRenderer, standard_sequences
 
@@ -35,6 +44,10 @@ LAYER_PX = 1.5
 LAYER_MIN = 5
 WALK_M_S = 1.5
 MIN_SPEED_PX_S = 10.0
+
+
+NAMES = ('today', 'layer d_dot', 'layer d_dot, clamped', 'clamped, acceleration removed',
+         'true d_dot')
 
 
 def layer_depth_rates(disparity, moving, difference):
@@ -55,7 +68,7 @@ def head_depth_rates(renderer, model, t, dt=0.01):
     return model.fx * model.baseline * (1 / depth(t + dt) - 1 / depth(t - dt)) / (2 * dt)
 
 
-def sequence_rows(name):
+def sequence_rows(name, start):
     """Yield ``(skew_ms, variant errors minus synchronized errors)`` per pair of a sequence."""
     spec = standard_sequences()[name]
     renderer = SequenceRenderer(spec)
@@ -63,11 +76,13 @@ def sequence_rows(name):
     model = rectifier.model
     matcher = StereoMatcher(STConfig(), model=model)
     period = 1.0 / spec.fps
-    for t in spec.frame_times[1::STRIDE]:
+    for t in spec.frame_times[start::STRIDE]:
         speeds = np.abs(renderer.head_image_velocity(t, model.fx))
         true_rates = head_depth_rates(renderer, model, t)
         previous_raw = renderer.camera_frame('left', t - period)
         previous = rectifier.rectify(previous_raw, previous_raw)[0]
+        earlier_raw = renderer.camera_frame('left', t - 2 * period)
+        earlier = rectifier.rectify(earlier_raw, earlier_raw)[0]
         frame = renderer.frame(t, with_truth=True)
         left0, right0 = rectifier.rectify(frame['left'], frame['right'])
         synchronized = matcher.match(left0, right0, **rectifier.valid_keywords())
@@ -95,6 +110,14 @@ def sequence_rows(name):
             bound = (result.disparity - model.disparity_offset) ** 2 * WALK_M_S / (
                 model.fx * model.baseline)
             clamped = np.clip(rates, -bound, bound)
+            x_before = np.clip(np.rint(result.x_left - v_left * period), 0,
+                               left.shape[1] - 1).astype(np.int64)
+            before = feature_motion(earlier, previous, x_before, result.y, period)
+            acceleration = np.where(moving & before.tracked,
+                                    (v_left - before.velocity_x) / period, 0.0)
+            steady = np.clip(layer_depth_rates(result.disparity, moving,
+                                               difference - acceleration * abs(skew)),
+                             -bound, bound)
             u, v = match_pixels(frame['truth'], result.x_left, result.y)
             person = frame['truth'].labels[v, u] - PERSON_LABEL_BASE
             on_person = (person >= 0) & (person < len(true_rates))
@@ -106,6 +129,8 @@ def sequence_rows(name):
                 'layer d_dot': result.disparity + (v_left - np.where(moving, rates, 0)) * skew,
                 'layer d_dot, clamped': result.disparity + (
                     v_left - np.where(moving, clamped, 0)) * skew,
+                'clamped, acceleration removed': result.disparity + (
+                    v_left - np.where(moving, steady, 0)) * skew,
                 'true d_dot': result.disparity + (
                     v_left - np.where(moving, true_rate, 0)) * skew}
             _, speed, index = people_disparity_errors(model, frame['truth'], result.x_left,
@@ -129,13 +154,17 @@ def _cell(values):
 
 def main():
     """Print one row per sequence and skew, and the five sequences together."""
-    names = ('today', 'layer d_dot', 'layer d_dot, clamped', 'true d_dot')
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('--start', type=int, default=1,
+                        help='first scored pair of each sequence (every 4th from it)')
+    start = max(parser.parse_args().start, 1)
+    names = NAMES
     print('| sequence | skew (ms) | matches | ' + ' | '.join(names) + ' |')
     print('|---|---:|---:|' + '---|' * len(names))
     together = {skew: {name: [] for name in names} for skew in SKEWS_MS}
     for sequence in SEQUENCES:
         rows = {skew: {name: [] for name in names} for skew in SKEWS_MS}
-        for skew_ms, values in sequence_rows(sequence):
+        for skew_ms, values in sequence_rows(sequence, start):
             for name in names:
                 rows[skew_ms][name].append(values[name])
                 together[skew_ms][name].append(values[name])
