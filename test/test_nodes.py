@@ -117,6 +117,19 @@ def test_parameters_out_of_range_are_rejected_with_the_reason(ros):
     assert not result.successful and 'disparity_min' in result.reason
     assert matcher.set_parameters([Parameter('gamma', value=0.3)])[0].successful
     assert matcher.config.gamma == 0.3
+    for name in ('target_frequency', 'pair_info_wait'):
+        result = matcher.set_parameters([Parameter(name, value=float('inf'))])[0]
+        assert not result.successful and f'{name}: expected a finite number' in result.reason
+
+
+@pytest.mark.parametrize('name, value', [('target_frequency', 0.0),
+                                         ('target_frequency', float('nan')),
+                                         ('pair_info_wait', -0.1),
+                                         ('pair_info_wait', float('inf'))])
+def test_a_matcher_started_with_a_rate_or_wait_that_is_not_one_names_it(ros, name, value):
+    context, _, _ = ros
+    with pytest.raises(ValueError, match=f'{name}: expected a finite number above 0'):
+        MatcherNode(context=context, parameter_overrides=[Parameter(name, value=value)])
 
 
 def test_invalid_calibration_names_file_and_field(ros, tmp_path):

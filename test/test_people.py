@@ -68,6 +68,14 @@ def test_the_bundled_recording_ships_its_true_rig_pose():
     ('legs_lapse_s', True, r'legs_lapse_s: expected a number >= 0 \(0: never\), got True'),
     ('legs_lapse_s', '5', r"legs_lapse_s: expected a number >= 0 \(0: never\), got '5'"),
     ('legs_lapse_s', float('nan'), r'legs_lapse_s: expected a number >= 0'),
+    ('body_half_depth_m', float('nan'), 'body_half_depth_m: expected a finite number, got nan'),
+    ('cut_body_offset_m', float('inf'), 'cut_body_offset_m: expected a finite number'),
+    ('head_offset_m', float('nan'), 'head_offset_m: expected a finite number'),
+    ('min_head_height_m', float('nan'), 'min_head_height_m: expected a finite number'),
+    ('edge_px', float('nan'), 'edge_px: expected a finite number'),
+    ('warm_margin_counts', -1000.0, r'warm_margin_counts: expected a number >= 0, got -1000.0'),
+    ('min_travel_m', -1.0, 'min_travel_m: expected a number >= 0'),
+    ('reacquire_cut_s', float('inf'), 'reacquire_cut_s: expected a finite number'),
 ])
 def test_a_bad_people_parameter_names_itself(field, value, message):
     with pytest.raises(ValueError, match=message):

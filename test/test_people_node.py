@@ -372,3 +372,85 @@ def test_right_images_that_never_come_are_a_warning(ros):
     assert node.counts['pairs_without_right_image'] == 3
     spin_until(executor, lambda: messages, 5.0)
     assert messages[-1].startswith('no right/image_rect with the stamps of points2')
+
+
+def test_a_cloud_in_another_frame_than_the_camera_info_is_dropped_and_named(ros):
+    context, executor, add = ros
+    collector = add(PeopleCollector(context))
+    node = add(people_node(context))
+    node._on_camera_info(camera_info_from_calibration(
+        LEFT, Header(frame_id='stereo_left_optical_frame')))
+    cloud, image = pair_messages(1, person_in_rectified_frame(0.2, 2.0, 1))
+    cloud.header.frame_id = 'base_link'
+    feed(node, cloud, image)
+    assert node.counts['dropped_frame_mismatch'] == 1 and node.counts['dropped_bad_input'] == 1
+    assert "points2: frame 'base_link', expected 'stereo_left_optical_frame'" in node.last_error
+    assert node.counts['published'] == 0
+    feed(node, *pair_messages(2, person_in_rectified_frame(0.2, 2.0, 2)))
+    assert node.counts['published'] == 1 and node.last_error == ''
+    spin_until(executor, lambda: collector.poses, 10.0)
+    assert collector.poses[0].header.stamp.sec == 2
+
+
+def test_a_left_image_not_in_raw_counts_or_empty_is_refused_and_named(ros):
+    executor, collector, node = connected_people_node(ros)
+    cloud, image = pair_messages(1, person_in_rectified_frame(0.2, 2.0, 1))
+    mono8 = image_to_msg(np.full((60, 80), 200, dtype=np.uint8), image.header, 'mono8')
+    feed(node, cloud, mono8)
+    assert node.counts['dropped_bad_input'] == 1
+    assert 'left/image_rect: encoding mono8, expected mono16' in node.last_error
+    cloud, image = pair_messages(2, person_in_rectified_frame(0.2, 2.0, 2))
+    feed(node, cloud, image_to_msg(np.zeros((0, 0), dtype=np.uint16), image.header))
+    assert node.counts['dropped_bad_input'] == 2
+    assert 'left/image_rect: empty image' in node.last_error
+
+
+def test_points_left_out_of_the_detections_are_counted(ros):
+    executor, collector, node = connected_people_node(
+        ros, Parameter('min_confidence', value=0.5))
+    points = person_in_rectified_frame(0.2, 2.0, 1)
+    cloud, image = pair_messages(1, points)
+    header = cloud.header
+    behind = points.copy()
+    behind[:3, 2] *= -1.0
+    disparity = np.full(len(points), np.nan)
+    disparity[:10] = 5.0
+    confidence = np.where(np.arange(len(points)) < 4, 0.3, 1.0)
+    cloud = point_cloud(header, behind, disparity, np.ones(len(points)),
+                        np.zeros(len(points)), confidence)
+    feed(node, cloud, image)
+    assert node.counts['points_behind_camera'] == 3 and node.counts['points_not_finite'] == 0
+    counts = node.estimator.counts
+    assert counts['points_without_disparity'] == len(points) - 10
+    assert counts['points_below_min_confidence'] == 1     # point 3: in front, 0.3, d = 5
+    assert node.counts['published'] == 1
+
+
+def test_an_error_in_the_people_stage_is_counted_and_the_node_goes_on(ros, monkeypatch):
+    executor, collector, node = connected_people_node(ros)
+    process = node.estimator.process
+
+    def failing(*args, **kwargs):
+        raise IndexError('index 0 is out of bounds')
+
+    monkeypatch.setattr(node.estimator, 'process', failing)
+    feed(node, *pair_messages(1, person_in_rectified_frame(0.2, 2.0, 1)))
+    assert node.counts['dropped_internal_error'] == 1 and node.counts['published'] == 0
+    assert 'IndexError: index 0 is out of bounds' in node.last_error
+    spin_until(executor, lambda: 'stereo/people: people' in collector.statuses, 5.0)
+    status = collector.statuses['stereo/people: people']
+    assert status['dropped_internal_error'] == '1'
+    monkeypatch.setattr(node.estimator, 'process', process)
+    feed(node, *pair_messages(2, person_in_rectified_frame(0.2, 2.0, 2)))
+    assert node.counts['published'] == 1 and node.last_error == ''
+
+
+@pytest.mark.parametrize('value', [0.0, -8.7, float('inf'), float('nan')])
+def test_a_target_frequency_that_is_not_a_rate_is_refused(ros, value):
+    context, executor, add = ros
+    with pytest.raises(ValueError, match='target_frequency: expected a finite number above 0'):
+        people_node(context, Parameter('target_frequency', value=value))
+    node = add(people_node(context))
+    result = node.set_parameters([Parameter('target_frequency', value=value)])[0]
+    assert not result.successful and 'expected a finite number above 0' in result.reason
+    assert node.frequency.target_hz == pytest.approx(8.7)

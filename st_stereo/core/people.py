@@ -257,6 +257,17 @@ class PeopleConfig:
                              f'{self.silhouette_min_correlation!r}')
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ValueError(f'people.min_confidence: expected 0..1, got {self.min_confidence!r}')
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.type in (float, 'float') and isinstance(value, (int, float)) and \
+                    not isinstance(value, bool) and not math.isfinite(value):
+                raise ValueError(f'people.{field.name}: expected a finite number, got '
+                                 f'{value!r}')
+        for name in ('warm_margin_counts', 'edge_px', 'min_head_height_m', 'min_travel_m',
+                     'reacquire_cut_s'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+                raise ValueError(f'people.{name}: expected a number >= 0, got {value!r}')
 
     def to_dict(self):
         """Return the fields as a dict."""
@@ -2020,7 +2031,9 @@ class PeopleEstimator:
         self.protect = None
         self.hold = None
         self.counts = {'pairs': 0, 'no_image': 0, 'no_points': 0, 'points_in': 0,
-                       'points_not_warm': 0, 'points_out_of_range': 0, 'detections': 0,
+                       'points_not_warm': 0, 'points_out_of_range': 0,
+                       'points_below_min_confidence': 0, 'points_without_disparity': 0,
+                       'detections': 0,
                        'cut_legs_checked': 0, 'cut_legs_seen': 0, 'cut_legs_out_of_image': 0,
                        'cut_legs_fragment': 0, 'cut_legs_gap': 0, 'cut_legs_not_checked': 0,
                        'cut_legs_wide': 0, 'head_legs_checked': 0, 'head_legs_seen': 0,
@@ -2079,6 +2092,15 @@ class PeopleEstimator:
             self.config.max_range_m
         self.counts['points_out_of_range'] += int((keep & ~in_range).sum())
         keep &= in_range
+        # What detect_people leaves out of the detections (counted here, where the points of
+        # the pair are known; they still count as matched points for the legs' tests).
+        if confidence is not None:
+            self.counts['points_below_min_confidence'] += int(
+                (keep & (np.asarray(confidence, dtype=np.float64) <
+                         self.config.min_confidence)).sum())
+        if disparity is not None:
+            self.counts['points_without_disparity'] += int(
+                (keep & ~(np.asarray(disparity, dtype=np.float64) > 0)).sum())
         used = np.flatnonzero(keep)
         pixels = np.column_stack([x_left, y])[keep]
         detections = detect_people(

@@ -6,12 +6,22 @@ diagnostic_updater's FrequencyStatus; ``status`` builds a DiagnosticStatus from 
 """
 
 import collections
+import math
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
+
+
+def target_frequency(value):
+    """Return a ``target_frequency`` parameter as a float; ValueError unless finite and > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not (math.isfinite(value) and value > 0):
+        raise ValueError(f'target_frequency: expected a finite number above 0 Hz, got '
+                         f'{value!r}')
+    return float(value)
 
 
 class FrequencyTracker:

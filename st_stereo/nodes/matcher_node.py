@@ -15,6 +15,7 @@ callbacks, and a pair still waiting when a newer one arrives is dropped and coun
 queue of old ones.
 """
 
+import math
 import threading
 import time
 
@@ -95,7 +96,7 @@ class MatcherNode(Node):
         self.pair_times = {}         # pair stamp -> (left acquisition time, skew), seconds
         self.create_subscription(DiagnosticArray, 'pair_info', self._on_pair_info, RELIABLE)
         self.frequency = diagnostics.FrequencyTracker(
-            self.get_parameter('target_frequency').value)
+            diagnostics.target_frequency(self.get_parameter('target_frequency').value))
         self.counts = {'pairs': 0, 'matched': 0, 'dropped_bad_input': 0, 'dropped_stale': 0,
                        'dropped_internal_error': 0, 'dropped_at_shutdown': 0, 'empty_clouds': 0,
                        'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
@@ -110,6 +111,11 @@ class MatcherNode(Node):
         # it after the images) waits for it, at most pair_info_wait seconds, once it has been
         # seen at all (a driver without it never makes a pair wait).
         self.pair_info_wait = self.get_parameter('pair_info_wait').value
+        if isinstance(self.pair_info_wait, bool) or \
+                not isinstance(self.pair_info_wait, (int, float)) or \
+                not (math.isfinite(self.pair_info_wait) and self.pair_info_wait > 0):
+            raise ValueError(f'pair_info_wait: expected a finite number above 0 s, got '
+                             f'{self.pair_info_wait!r}')
         self.pair_info_seen = False
         self._waiting = None         # (monotonic arrival, the pair's four messages)
         # On the steady clock: under use_sim_time a /clock that stops (a bag's end) must not
@@ -170,10 +176,12 @@ class MatcherNode(Node):
     def _on_parameters(self, parameters):
         for parameter in parameters:
             if parameter.name in ('target_frequency', 'pair_info_wait'):
-                if not isinstance(parameter.value, (int, float)) or not parameter.value > 0:
+                if isinstance(parameter.value, bool) or \
+                        not isinstance(parameter.value, (int, float)) or \
+                        not (math.isfinite(parameter.value) and parameter.value > 0):
                     return SetParametersResult(
                         successful=False,
-                        reason=f'{parameter.name}: expected a number above 0, got '
+                        reason=f'{parameter.name}: expected a finite number above 0, got '
                                f'{parameter.value!r}')
         result, config = validate_changes(self.config, parameters)
         if not result.successful:

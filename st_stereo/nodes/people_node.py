@@ -27,6 +27,7 @@ camera_info has arrived no pair can be placed in the room: each one is counted
 
 import collections
 import importlib
+import traceback
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
@@ -49,6 +50,11 @@ from visualization_msgs.msg import MarkerArray
 
 POSE_PARAMETERS = ('x_m', 'y_m', 'height_m', 'yaw_deg', 'tilt_deg', 'roll_deg')
 IMAGES_KEPT = 30        # left images waiting for their points (3.4 s at 8.7 Hz)
+
+
+def _numbers(values):
+    """Return a message's number array as plain text (``[1, 0, 41.5, ...]``)."""
+    return '[' + ', '.join(f'{float(value):g}' for value in values) + ']'
 
 
 def optional_vision_msgs():
@@ -108,7 +114,8 @@ class PeopleNode(Node):
                        'camera_info_rejected': 0, 'pairs_without_right_image': 0,
                        'right_images_without_points': 0, 'right_camera_info_rejected': 0,
                        'right_image_rejected': 0, 'pairs_without_pair_info': 0,
-                       'pair_info_unreadable': 0}
+                       'pair_info_unreadable': 0, 'points_behind_camera': 0,
+                       'dropped_frame_mismatch': 0, 'dropped_internal_error': 0}
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -118,17 +125,17 @@ class PeopleNode(Node):
         self.last_error = ''
         self.right_error = ''           # the last right/camera_info or right/image_rect refused
         self.frequency = diagnostics.FrequencyTracker(
-            self.get_parameter('target_frequency').value)
+            diagnostics.target_frequency(self.get_parameter('target_frequency').value))
         self.add_on_set_parameters_callback(self._on_parameters)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _on_parameters(self, parameters):
         for parameter in parameters:
             if parameter.name == 'target_frequency':
-                if not (isinstance(parameter.value, float) and parameter.value > 0):
-                    return SetParametersResult(successful=False,
-                                               reason='target_frequency: expected > 0')
-                self.frequency.target_hz = parameter.value
+                try:
+                    self.frequency.target_hz = diagnostics.target_frequency(parameter.value)
+                except ValueError as error:
+                    return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
 
     def _on_camera_info(self, msg):
@@ -151,7 +158,8 @@ class PeopleNode(Node):
         """Return the world transform of a camera_info (None: unchanged); ValueError if bad."""
         p = np.array(msg.p, dtype=np.float64).reshape(3, 4)
         if not (np.isfinite(p).all() and p[0, 0] > 0 and p[1, 1] > 0):
-            raise ValueError(f'P: expected fx = P[0] > 0 and fy = P[5] > 0, got {list(msg.p)}')
+            raise ValueError(f'P: expected fx = P[0] > 0 and fy = P[5] > 0, got '
+                             f'{_numbers(msg.p)}')
         if tuple(msg.r) == self._rectification:
             return None
         r1 = np.array(msg.r, dtype=np.float64).reshape(3, 3)
@@ -181,7 +189,7 @@ class PeopleNode(Node):
         if not (np.isfinite(p).all() and p[0, 0] > 0 and p[0, 3] < 0):
             self.counts['right_camera_info_rejected'] += 1
             self.right_error = (f'right/camera_info: P: expected fx = P[0] > 0 and P[3] = '
-                                f'-fx B < 0 (left camera first), got {list(msg.p)}')
+                                f'-fx B < 0 (left camera first), got {_numbers(msg.p)}')
             self.get_logger().warning(self.right_error, throttle_duration_sec=5.0)
             return
         self.right_projection = p
@@ -254,8 +262,21 @@ class PeopleNode(Node):
         try:
             fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
                                                     ('disparity', 'confidence'))
-            image = None if image_msg is None else conversions.msg_to_image(image_msg)
             info = self.camera_info
+            frame, expected = points_msg.header.frame_id, info.header.frame_id
+            if frame and expected and frame.lstrip('/') != expected.lstrip('/'):
+                self.counts['dropped_frame_mismatch'] += 1
+                raise ValueError(f'points2: frame {frame!r}, expected {expected!r}, the frame '
+                                 f'of left/camera_info (the rectified left optical frame; no '
+                                 f'TF is applied)')
+            image = None
+            if image_msg is not None:
+                if image_msg.encoding != 'mono16':
+                    raise ValueError(f'left/image_rect: encoding {image_msg.encoding}, '
+                                     f'expected mono16 (raw counts: warm_margin_counts)')
+                image = conversions.msg_to_image(image_msg)
+                if not image.size:
+                    raise ValueError('left/image_rect: empty image (0 pixels)')
             if image is not None and info.width and image.shape != (info.height, info.width):
                 raise ValueError(f'left/image_rect: {image.shape[1]}x{image.shape[0]}, '
                                  f'left/camera_info says {info.width}x{info.height}')
@@ -268,8 +289,11 @@ class PeopleNode(Node):
         self.last_error = ''
         right = self._right_image(right_msg, image)
         points = np.column_stack([fields['x'], fields['y'], fields['z']])
-        finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
+        finite = np.isfinite(points).all(axis=1)
         self.counts['points_not_finite'] += int((~finite).sum())
+        behind = finite & ~(points[:, 2] > 0)
+        self.counts['points_behind_camera'] += int(behind.sum())
+        finite &= ~behind
         points = points[finite]
         if self.use_image and image is None:
             # No image of this stamp (yet): no warm foreground, so no detection; the tracks
@@ -287,12 +311,19 @@ class PeopleNode(Node):
         if shape is None and self.camera_info.width and self.camera_info.height:
             shape = (self.camera_info.height, self.camera_info.width)
         stamp_s = points_msg.header.stamp.sec + 1e-9 * points_msg.header.stamp.nanosec
-        frame = self.estimator.process(
-            stamp_s, points, x_left, y,
-            None if fields['disparity'] is None else fields['disparity'][finite],
-            None if fields['confidence'] is None else fields['confidence'][finite],
-            image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]), right_image=right,
-            stereo=self._stereo(), skew_s=skew)
+        try:
+            frame = self.estimator.process(
+                stamp_s, points, x_left, y,
+                None if fields['disparity'] is None else fields['disparity'][finite],
+                None if fields['confidence'] is None else fields['confidence'][finite],
+                image, shape, intrinsics=(p[0, 0], p[1, 1], p[0, 2], p[1, 2]),
+                right_image=right, stereo=self._stereo(), skew_s=skew)
+        except Exception as error:  # noqa: B902 -- the node lives on, the pair is counted
+            self.counts['dropped_internal_error'] += 1
+            self.last_error = f'internal error on a pair: {type(error).__name__}: {error}'
+            self.get_logger().error(f'{self.last_error}\n{traceback.format_exc()}',
+                                    throttle_duration_sec=5.0)
+            return
         header = Header(stamp=points_msg.header.stamp, frame_id=self.pose.world_frame)
         self.poses_pub.publish(people_messages.poses_msg(header, frame.tracks))
         self.detections_pub.publish(people_messages.detections_cloud(header, frame.tracks))
