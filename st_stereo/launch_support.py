@@ -53,8 +53,12 @@ def integer(text, name):
 
 
 def rig_pose(value):
-    """Return the RigPose of ``rig_pose_file`` with the non-empty pose launch arguments over it."""
-    pose = load_rig_pose(value('rig_pose_file'))
+    """
+    Return the RigPose of ``rig_pose_file`` with the non-empty pose launch arguments over it.
+
+    The file must give ``height_m`` unless the ``height_m`` argument does.
+    """
+    pose = load_rig_pose(value('rig_pose_file'), () if value('height_m') else ('height_m',))
     fields = {field: getattr(pose, field) for field in POSE_FIELDS}
     for field in POSE_FIELDS:
         if value(field):

@@ -254,6 +254,23 @@ def test_rig_pose_launch_arguments_override_the_file(rig_files):
         launch('st_stereo.launch.py', tilt_deg='steep')
 
 
+def test_a_rig_pose_file_without_the_height_is_refused_unless_the_argument_gives_it(
+        rig_files, tmp_path):
+    _, urls, _ = rig_files
+    pose = tmp_path / 'pose.yaml'
+    pose.write_text('yaw_deg: 30.0\ntilt_deg: 40.0\n', encoding='utf-8')
+    calibration = {'left_camera_info_url': urls[0], 'right_camera_info_url': urls[1]}
+    with pytest.raises(RigPoseError, match=r'pose.yaml: height_m missing \(st-stereo rig-pose '
+                                           r'measures height_m, tilt_deg and roll_deg'):
+        launch('st_stereo.launch.py', rig_pose_file=str(pose), **calibration)
+    _, nodes = launch('st_stereo.launch.py', rig_pose_file=str(pose), height_m='2.9',
+                      **calibration)
+    people = next(node for node in nodes if node.executable == 'people')
+    given = {key: value for entry in people.parameters if isinstance(entry, dict)
+             for key, value in entry.items()}
+    assert (given['height_m'], given['tilt_deg'], given['yaw_deg']) == (2.9, 40.0, 30.0)
+
+
 PARAMETER_FILE = """\
 /**:
   ros__parameters:

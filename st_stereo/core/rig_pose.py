@@ -84,8 +84,14 @@ def rig_pose_from_mapping(values, source='rig pose'):
         raise RigPoseError(f'{source}: {error}') from None
 
 
-def load_rig_pose(path):
-    """Read a rig pose YAML file (the fields of RigPose, all optional)."""
+def load_rig_pose(path, required=()):
+    """
+    Read a rig pose YAML file (the fields of RigPose, optional but ``required``).
+
+    A field of ``required`` missing from the file is an error naming it (the launch files
+    require ``height_m``: a rig placed 2.7 m high by default puts every person at the wrong
+    distance without a word).
+    """
     import yaml
     try:
         with open(path, encoding='utf-8') as stream:
@@ -94,7 +100,13 @@ def load_rig_pose(path):
         raise RigPoseError(f'{path}: cannot be read: {error.strerror}') from None
     except yaml.YAMLError as error:
         raise RigPoseError(f'{path}: not YAML: {str(error).splitlines()[0]}') from None
-    return rig_pose_from_mapping({} if values is None else values, str(path))
+    values = {} if values is None else values
+    missing = [field for field in required if isinstance(values, dict) and field not in values]
+    if missing:
+        raise RigPoseError(f'{path}: {", ".join(missing)} missing (st-stereo rig-pose '
+                           f'measures height_m, tilt_deg and roll_deg; the user sets x_m, y_m '
+                           f'and yaw_deg)')
+    return rig_pose_from_mapping(values, str(path))
 
 
 def rig_pose_yaml(pose, header=(), notes=None):
