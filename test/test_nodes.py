@@ -113,6 +113,9 @@ def test_parameters_out_of_range_are_rejected_with_the_reason(ros):
     matcher = add(MatcherNode(context=context))
     result = matcher.set_parameters([Parameter('poc_window', value=8)])[0]
     assert not result.successful and 'poc_window' in result.reason   # the descriptor's step
+    # 5 was in the declared range, but its peak fit rejected every match (a review).
+    result = matcher.set_parameters([Parameter('poc_window', value=5)])[0]
+    assert not result.successful and 'poc_window' in result.reason
     result = matcher.set_parameters([Parameter('disparity_min', value=50)])[0]
     assert not result.successful and 'disparity_min' in result.reason
     assert matcher.set_parameters([Parameter('gamma', value=0.3)])[0].successful
@@ -603,3 +606,46 @@ def test_a_second_signal_forces_the_stop_only_after_the_repeat_window(
     assert 'Traceback' not in err, err[-2000:]
     assert ('stopped' in out) == (code == 0)
     assert ('stopped by a second signal' in err) == (code != 0)
+
+
+def test_a_camera_info_opencv_or_rectification_cannot_use_is_dropped_and_named(ros):
+    # An independent review: a distortion vector of the wrong length killed the rectifier
+    # process (cv2.error), and NaN or absurd values rectified to blank images under an OK
+    # status; a K changed alone kept the old maps.
+    context, _, add = ros
+    rectifier = add(RectifierNode(context=context))
+    rng = np.random.default_rng(0)
+    texture = rng.normal(8000.0, 30.0, (60, 80))
+    header = Header(frame_id='left')
+    left = image_to_msg(texture.astype(np.uint16), header)
+    right = image_to_msg(np.roll(texture, -5, axis=1).astype(np.uint16), header)
+    published = []
+    rectifier.image_pubs[0].publish = published.append
+
+    def pair(left_info):
+        rectifier._on_pair(left, right, left_info, _info(80, 60, -46.3))
+
+    cases = [({'distortion_model': 'equidistant'}, 'for equidistant must hold 4 values, got 5'),
+             ({'d': [0.0] * 3}, 'for plumb_bob must hold 5 values, got 3'),
+             ({'k': [84.0, 0, 40.0, 0, float('nan'), 30.0, 0, 0, 1]},
+              'camera_matrix.data holds non-finite values'),
+             ({'r': [0.0] * 9}, 'rectification_matrix R is not a rotation'),
+             ({'d': [1e6, 0, 0, 0, 0]}, 'the calibration maps 0 of 4800 rectified pixels')]
+    for dropped, (change, message) in enumerate(cases, start=1):
+        info = _info(80, 60, 0.0)
+        for field, value in change.items():
+            setattr(info, field, value)
+        pair(info)
+        assert rectifier.counts['dropped_bad_input'] == dropped, change
+        assert message in rectifier.last_error, rectifier.last_error
+    assert not published
+    pair(_info(80, 60, 0.0))
+    assert rectifier.last_error == '' and len(published) == 1
+    wider = _info(80, 60, 0.0)
+    wider.k = [120.0, 0.0, 40.0, 0.0, 120.0, 30.0, 0.0, 0.0, 1.0]
+    pair(wider)                                   # K alone changed: new maps
+    assert len(published) == 2 and bytes(published[1].data) != bytes(published[0].data)
+    resized = _info(80, 60, 0.0)
+    resized.width = 81
+    pair(resized)
+    assert 'left is 81x60 but right is 80x60' in rectifier.last_error

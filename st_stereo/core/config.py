@@ -91,7 +91,8 @@ class STConfig:
                                             low=1, high=1000)
 
     # --- 3. Sub-pixel phase-only correlation (paper section 2.4) ----------------------------
-    poc_window: int = _field(9, 'POC window side W, pixels', low=5, high=63, odd=True)
+    poc_window: int = _field(9, 'POC window side W, pixels (the peak fit needs 7 or more)',
+                             low=7, high=63, odd=True)
     poc_band: str = _field('full', 'POC band limit: full (V = W) or takita (K = half of the '
                            'half-width)', choices=('full', 'takita'))
     poc_hann: bool = _field(True, 'half-sample Hann window before the FFT')

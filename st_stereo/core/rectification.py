@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 
-from st_stereo.core.calibration.files import check_stereo_pair
+from st_stereo.core.calibration.files import CalibrationError, check_stereo_pair
 from st_stereo.core.triangulation import StereoModel
 
 
@@ -32,6 +32,11 @@ def valid_region(maps, shape):
     return (map_x >= -0.5) & (map_x <= cols - 0.5) & (map_y >= -0.5) & (map_y <= rows - 0.5)
 
 
+# A real calibration maps most rectified pixels into the raw image (the bundled one: all);
+# one that maps almost none (a NaN or absurd K, D or R) would publish blank images.
+MIN_VALID_FRACTION = 0.01
+
+
 class StereoRectifier:
     """Rectify raw pairs of a calibrated rig; keeps raw counts (float32 output, no 8-bit)."""
 
@@ -39,11 +44,22 @@ class StereoRectifier:
         check_stereo_pair(left_calibration, right_calibration)
         self.left = left_calibration
         self.right = right_calibration
-        self.left_maps = rectification_maps(left_calibration)
-        self.right_maps = rectification_maps(right_calibration)
+        maps = []
+        for calibration, side in ((left_calibration, 'left'), (right_calibration, 'right')):
+            try:
+                maps.append(rectification_maps(calibration))
+            except cv2.error as error:
+                raise CalibrationError(f'{side}: OpenCV cannot rectify with this calibration: '
+                                       f'{str(error).strip().splitlines()[-1]}') from None
+        self.left_maps, self.right_maps = maps
         # Fixed by the calibration: computed once, not per frame.
         self._valid = (valid_region(self.left_maps, self.shape),
                        valid_region(self.right_maps, self.shape))
+        for valid, side in zip(self._valid, ('left', 'right')):
+            if valid.mean() < MIN_VALID_FRACTION:
+                raise CalibrationError(
+                    f'{side}: the calibration maps {valid.sum()} of {valid.size} rectified '
+                    f'pixels into the raw image (check K, D, R and P)')
         self.model = StereoModel.from_projection_matrices(left_calibration.projection,
                                                           right_calibration.projection)
 

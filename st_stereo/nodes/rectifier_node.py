@@ -57,8 +57,11 @@ class RectifierNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _rectifier_for(self, left_info, right_info):
-        key = (tuple(left_info.p), tuple(right_info.p), tuple(left_info.d),
-               tuple(right_info.d), tuple(left_info.r), tuple(right_info.r))
+        # Everything the maps and the checks depend on (a changed K, model or size alone
+        # must rebuild them, and be checked).
+        key = tuple((info.width, info.height, info.distortion_model, tuple(info.k),
+                     tuple(info.d), tuple(info.r), tuple(info.p))
+                    for info in (left_info, right_info))
         if key != self._calibration_key:
             self.rectifier = StereoRectifier(
                 calibration_from_camera_info(left_info, 'left'),

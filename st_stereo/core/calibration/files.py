@@ -104,19 +104,38 @@ def parse_calibration(document, source='<calibration>'):
                              projection=matrices['projection_matrix'])
 
 
-def calibration_from_camera_info(msg, camera_name=''):
+def calibration_from_camera_info(msg, camera_name='', source=None):
     """
-    Return the CameraCalibration of a sensor_msgs/CameraInfo.
+    Return the CameraCalibration of a sensor_msgs/CameraInfo, validated as a file is.
 
-    Any object with CameraInfo's fields (rclpy's message, a rosbags-deserialized one).
+    Any object with CameraInfo's fields (rclpy's message, a rosbags-deserialized one). The
+    checks of ``parse_calibration`` apply (a known distortion model with its number of
+    coefficients, finite matrices, a positive size: OpenCV raises on a wrong distortion length,
+    and non-finite values rectify to nothing), and R must be a rotation; an empty D is no
+    distortion. CalibrationError names ``source`` (default ``<camera_name> camera_info``).
     """
-    return CameraCalibration(width=int(msg.width), height=int(msg.height),
-                             camera_name=camera_name,
-                             camera_matrix=np.array(msg.k, dtype=float).reshape(3, 3),
-                             distortion_model=msg.distortion_model or 'plumb_bob',
-                             distortion=np.array(msg.d, dtype=float),
-                             rectification=np.array(msg.r, dtype=float).reshape(3, 3),
-                             projection=np.array(msg.p, dtype=float).reshape(3, 4))
+    source = source or f'{camera_name} camera_info'.strip()
+    model = msg.distortion_model or 'plumb_bob'
+    distortion = [float(value) for value in msg.d]
+    if not distortion and model in DISTORTION_MODELS:
+        distortion = [0.0] * DISTORTION_MODELS[model][0]
+
+    def matrix(values, rows, cols):
+        return {'rows': rows, 'cols': cols, 'data': [float(value) for value in values]}
+
+    document = {'image_width': int(msg.width), 'image_height': int(msg.height),
+                'camera_name': camera_name, 'distortion_model': model,
+                'camera_matrix': matrix(msg.k, 3, 3),
+                'distortion_coefficients': matrix(distortion, 1, max(len(distortion), 1)),
+                'rectification_matrix': matrix(msg.r, 3, 3),
+                'projection_matrix': matrix(msg.p, 3, 4)}
+    calibration = parse_calibration(document, source)
+    rotation = calibration.rectification
+    if not (np.abs(rotation @ rotation.T - np.eye(3)).max() < 1e-3 and
+            np.linalg.det(rotation) > 0):
+        raise CalibrationError(f'{source}: rectification_matrix R is not a rotation, got '
+                               f'{", ".join(f"{value:g}" for value in rotation.ravel())}')
+    return calibration
 
 
 def load_calibration(path):
