@@ -14,7 +14,7 @@ def raw_image_messages(path):
     """
     from rosbags.typesys import get_typestore, Stores
 
-    from st_stereo.bag_reading import bag_messages, open_bag
+    from st_stereo.bag_reading import bag_messages, normalized_msgtype, open_bag
     path = pathlib.Path(path)
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
@@ -26,7 +26,8 @@ def raw_image_messages(path):
                              f'right/image_raw, found {sorted(reader.topics)}')
         for connection, _, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
-            msg = typestore.deserialize_cdr(data, connection.msgtype)
+            # Older bags name types without the /msg/ part (sensor_msgs/Image).
+            msg = typestore.deserialize_cdr(data, normalized_msgtype(connection.msgtype))
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             yield wanted[connection.id], stamp, msg
     finally:

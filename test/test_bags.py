@@ -3,6 +3,7 @@
 import pathlib
 import time
 
+from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
 import rclpy
@@ -372,3 +373,65 @@ def test_metadata_fields_of_the_wrong_shape_are_a_bag_error(tmp_path):
     metadata.write_text(yaml.safe_dump(document))
     with pytest.raises(BagError, match='field files: expected a list, got str'):
         open_bag(bag)
+
+
+# --- an independent review of the bag source (2026-12-07) ---------------------------------------
+def _raw_topics(left_stamps, right_stamps, msgtype='sensor_msgs/msg/Image', encoding='mono16'):
+    """left/right image_raw topics of a flat 80x60 frame at the given stamps (seconds)."""
+    from builtin_interfaces.msg import Time
+    from rosbag2_layouts import Topic
+
+    def image(stamp):
+        header = Header(stamp=Time(sec=int(stamp), nanosec=int(round(stamp % 1 * 1e9))),
+                        frame_id='cam')
+        msg = image_to_msg(np.full((60, 80), 8000, np.uint16), header)
+        msg.encoding = encoding
+        return msg
+    return [Topic('/stereo/left/image_raw', msgtype, [image(t) for t in left_stamps]),
+            Topic('/stereo/right/image_raw', msgtype, [image(t) for t in right_stamps])]
+
+
+def test_old_type_names_and_a_camera_recorded_later_replay_on_one_time_line(tmp_path):
+    # A v4 bag with `sensor_msgs/Image` (the old spelling) crashed the driver with a KeyError;
+    # a right camera recorded 1 s after the left one was read as if it started with it.
+    from rosbag2_layouts import write_bag
+    from st_stereo.nodes.bag_source import open_bag_sides
+    start = 1_714_557_600.0
+    left_stamps = [start + 0.1136 * i for i in range(20)]
+    right_stamps = [start + 1.0136 + 0.1136 * i for i in range(12)]
+    bag = tmp_path / 'old'
+    write_bag(bag, 4, 'sqlite3', _raw_topics(left_stamps, right_stamps, 'sensor_msgs/Image'))
+    left, right = open_bag_sides(bag)
+    assert len(left.messages) == 20 and len(right.messages) == 12
+    assert left.next_time() == 0.0
+    assert right.next_time() == pytest.approx(1.0136, abs=1e-6)   # waits for its second
+
+
+def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finished(tmp_path):
+    from rosbag2_layouts import write_bag
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i for i in range(4)]
+    bag = tmp_path / 'encoding'
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='16UC1'))
+    with ros_nodes() as (context, executor, add):
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        spin_until_finished(executor, driver, 30.0)
+        statuses = [driver._pairs_status(time.monotonic()),
+                    driver._camera_status(0, time.monotonic())]
+    assert driver.published == 0
+    assert (statuses[0].level, statuses[0].message) == \
+        (DiagnosticStatus.ERROR, 'finished: the source gave no pair')
+    assert "image encoding: expected one of mono16, mono8, 32FC1, got '16UC1'" in \
+        statuses[1].message
+    assert 'left/image_raw message 3' in statuses[1].message
+
+
+@pytest.mark.parametrize('name, value, message', [
+    ('bag', '', r'parameter bag \(the rosbag2 directory or file to replay\) is empty'),
+    ('duration', -1.0, r'duration: expected seconds >= 0 \(0: until the source ends\), got -1.0')])
+def test_a_bag_source_without_a_bag_or_with_a_negative_duration_is_refused(name, value, message):
+    with ros_nodes() as (context, _, _):
+        with pytest.raises(ValueError, match=message):
+            DriverNode(context=context, parameter_overrides=[
+                Parameter('source', value='bag'), Parameter(name, value=value)])

@@ -21,13 +21,16 @@ class _BagTime:
 class BagSide:
     """One camera's frames of a bag, with the reader's interface."""
 
-    def __init__(self, topic, messages):
+    def __init__(self, topic, messages, start=None):
         self.topic = topic
         self.messages = messages           # [(stamp, Image)], in bag order
         self.position = 0
         self.counters = LeptonCounters()
         self.transport = _BagTime(self)
-        self.start = messages[0][0] if messages else 0.0
+        # Both sides' times count from one start (the earlier side's first stamp): a camera
+        # recorded a second later must wait that second, not start with the other one.
+        self.start = start if start is not None else (messages[0][0] if messages else 0.0)
+        self.last_problem = ''             # why the last refused frame was refused
 
     def next_time(self):
         """Time of the next frame relative to the first (for pacing and interleaving)."""
@@ -44,8 +47,9 @@ class BagSide:
         self.counters.frames_completed += 1
         try:
             pixels = msg_to_image(msg, 'mono16')
-        except ValueError:
+        except ValueError as error:
             self.counters.frames_aborted += 1
+            self.last_problem = f'{self.topic} message {self.position - 1}: {error}'
             return None
         self.counters.unique_frames += 1
         return LeptonFrame(pixels.copy(), stamp, self.position - 1)
@@ -56,7 +60,9 @@ def open_bag_sides(path):
     streams = {'left': [], 'right': []}
     for side, stamp_ns, msg in raw_image_messages(path):
         streams[side].append((stamp_ns * 1e-9, msg))
-    return [BagSide(f'{side}/image_raw', streams[side]) for side in ('left', 'right')]
+    firsts = [streams[side][0][0] for side in ('left', 'right') if streams[side]]
+    start = min(firsts) if firsts else 0.0
+    return [BagSide(f'{side}/image_raw', streams[side], start) for side in ('left', 'right')]
 
 
 class RecordedPairInfo:

@@ -22,12 +22,14 @@ one thread.
 """
 
 import collections
+import math
 import queue
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
@@ -66,6 +68,10 @@ class DriverNode(Node):
         self.telemetry = value('telemetry')
         self.max_delta = value('max_pair_delta')
         self.duration = value('duration')
+        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and
+                self.duration >= 0):
+            raise ValueError(f'duration: expected seconds >= 0 (0: until the source ends), got '
+                             f'{self.duration!r}')
         self.sim_depth = value('sim_depth')
         self.sim_texture = value('sim_texture')
         captures = [value(f'{side}_capture') for side in SIDES]
@@ -120,7 +126,9 @@ class DriverNode(Node):
             self._thread = threading.Thread(target=self._run, name='lepton_reader',
                                             daemon=True)
             self._thread.start()
-        self.create_timer(1.0, self._publish_diagnostics)
+        # On the steady clock: under use_sim_time a replay without /clock would stop them.
+        self.create_timer(1.0, self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def camera_counters_list(self):
         """Each camera's LeptonCounters (live cameras across restarts, else the reader's)."""
@@ -186,6 +194,9 @@ class DriverNode(Node):
             return readers, [None, None]
         if self.source == 'bag':
             from st_stereo.nodes.bag_source import open_bag_sides, RecordedPairInfo
+            if not self._value('bag'):
+                raise ValueError('source bag: parameter bag (the rosbag2 directory or file to '
+                                 'replay) is empty')
             # Images of a recorded pair share its stamp: the skew is only in its pair_info.
             self.recorded_pair_info = RecordedPairInfo(self._value('bag'))
             return open_bag_sides(self._value('bag')), [None, None]
@@ -280,6 +291,7 @@ class DriverNode(Node):
         wall_start = time.monotonic()
         simulated = self.source in ('sim', 'bag')     # paced at real time
         base = None
+        ended = 'end of the source'
         try:
             while not self._stop.is_set():
                 # Read from the camera that is behind, so the streams stay interleaved.
@@ -299,6 +311,7 @@ class DriverNode(Node):
                 if base is None:
                     base = frame.stamp
                 if self.duration and frame.stamp - base > self.duration:
+                    ended = f'duration {self.duration:g} s reached'
                     break
                 self.pair_ffc.seen(SIDES[side], frame)
                 if not frame.stamp_exact:
@@ -316,6 +329,9 @@ class DriverNode(Node):
                 self.get_logger().error(f'reading stopped: {self.last_error}')
         finally:
             self.finished.set()
+        if not self.last_error and not self._stop.is_set():
+            self.get_logger().info(f'{self.source}: {ended}: {self.published} pairs published '
+                                   f'(the node stays up; its status says finished)')
 
     def _to_stamp_s(self, acquired, live, clock_start, base):
         """Stamp (node-clock seconds) of an acquisition time of the source."""
@@ -461,6 +477,10 @@ class DriverNode(Node):
             values.update(self.recorded_pair_info.counts)
             if self.recorded_pair_info.last_problem:
                 values['recorded pair_info: last problem'] = self.recorded_pair_info.last_problem
+        if self.finished.is_set() and not self.live and not self.last_error:
+            level = diagnostics.OK if self.published else diagnostics.ERROR
+            summary = f'finished: {self.published} pairs published' if self.published else \
+                'finished: the source gave no pair'
         if self.last_error:
             level, summary = diagnostics.ERROR, self.last_error
         return diagnostics.status(diagnostics.status_name(self, 'stereo pairs'), self.source,
@@ -482,6 +502,8 @@ class DriverNode(Node):
             counters = reader.counters.as_dict()
             hardware = getattr(reader.transport, 'device', f'{self.source}:{side}')
             silent = 0.0 if counters['unique_frames'] else float('inf')
+            if getattr(reader, 'last_problem', ''):
+                counters['last frame refused'] = reader.last_problem
         telemetry = self.last_telemetry[index]
         if telemetry is not None:
             counters['FPA temperature (K)'] = telemetry.fpa_temperature_k
@@ -497,6 +519,8 @@ class DriverNode(Node):
                 f'no frame for {silent:.1f} s'
             if self.live and self.streams[index].counters.last_error:
                 summary += f' ({self.streams[index].counters.last_error})'
+            elif not self.live and getattr(self.readers[index], 'last_problem', ''):
+                summary += f' (last frame refused: {self.readers[index].last_problem})'
         elif self.live and rate < 8.0 and now - self.started > 6.0:
             level, summary = diagnostics.WARN, f'{rate:.2f} unique frames/s, below 8'
         else:
