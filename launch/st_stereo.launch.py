@@ -39,6 +39,9 @@ def launch_setup(value):
     for name in ('left_i2c_bus', 'right_i2c_bus'):
         if value(name):
             driver[name] = launch_support.integer(value(name), name)
+    if value('left_camera_info_url') or value('right_camera_info_url'):
+        # Calibration URLs given: they, not a replayed bag's own camera_info (source bag).
+        driver['bag_camera_info'] = False
     return [Node(package='st_stereo', executable='lepton_driver', name='lepton_driver',
                  namespace=value('namespace'), parameters=[value('params_file'), driver],
                  ros_arguments=['--log-level', value('log_level')],

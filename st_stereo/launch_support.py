@@ -80,6 +80,27 @@ def calibration_urls(value):
             for side in ('left', 'right')]
 
 
+def driver_calibrations(value):
+    """
+    Return the two calibrations the driver will publish, for the transforms.
+
+    The camera_info URLs' (``calibration_urls``), but for a driver replaying a bag
+    (``source`` bag) with ``bag_camera_info`` (not when the launch gives URLs) whose bag has
+    its own camera_info: that one, as the driver publishes it.
+    """
+    def driver(name):
+        return value(name) or driver_parameter(value('params_file'), name, value('namespace'))
+    urls_given = value('left_camera_info_url') or value('right_camera_info_url')
+    if driver('source') == 'bag' and driver('bag') and not urls_given and \
+            driver_parameter(value('params_file'), 'bag_camera_info', value('namespace')):
+        from st_stereo.bag_streams import recorded_calibrations
+        try:
+            return list(recorded_calibrations(driver('bag')))
+        except ValueError:          # no camera_info in the bag: the driver's URLs
+            pass
+    return [load_calibration(resolve_url(url)) for url in calibration_urls(value)]
+
+
 def rig_transforms(value, calibrations):
     """Return the rig's three StaticTransforms (pose, calibrations, the driver's frame ids)."""
     frames = [driver_parameter(value('params_file'), f'{side}.frame_id', value('namespace'))
@@ -105,7 +126,7 @@ def stereo_nodes(value, calibrations_for_tf=None):
     its parameters, after the parameter file's: one pose for the transforms and the people.
 
     ``value(name)``: a launch argument's performed text. The transforms' calibration is the
-    driver's (``calibration_urls``) unless ``calibrations_for_tf(value)`` gives another.
+    driver's (``driver_calibrations``) unless ``calibrations_for_tf(value)`` gives another.
     """
     from launch_ros.actions import Node
     namespace, params_file = value('namespace'), value('params_file')
@@ -122,7 +143,7 @@ def stereo_nodes(value, calibrations_for_tf=None):
                       ros_arguments=['--log-level', value('log_level')], output='screen'))
     if flag(value('publish_tf'), 'publish_tf'):
         calibrations = calibrations_for_tf(value) if calibrations_for_tf else \
-            [load_calibration(resolve_url(url)) for url in calibration_urls(value)]
+            driver_calibrations(value)
         nodes += static_transform_nodes(rig_transforms(value, calibrations), namespace,
                                         use_sim_time)
     return nodes

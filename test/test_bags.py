@@ -435,3 +435,35 @@ def test_a_bag_source_without_a_bag_or_with_a_negative_duration_is_refused(name,
         with pytest.raises(ValueError, match=message):
             DriverNode(context=context, parameter_overrides=[
                 Parameter('source', value='bag'), Parameter(name, value=value)])
+
+
+def test_a_bag_with_its_own_calibration_is_replayed_with_it(tmp_path):
+    # The review: the driver published the package's default calibration over a bag's own
+    # (a user's recording of another rig got that rig's depths wrong without a word).
+    import dataclasses
+    from rosbag2_layouts import Topic, write_bag
+    from sensor_msgs.msg import CameraInfo
+    default = [load_calibration(CALIBRATION / f'{side}.yaml')
+               for side in ('left', 'right')]
+    own = [dataclasses.replace(calibration, projection=calibration.projection * [[1.1], [1.1],
+                                                                                 [1.0]])
+           for calibration in default]
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i for i in range(3)]
+    topics = _raw_topics(stamps, stamps) + [
+        Topic(f'/stereo/{side}/camera_info', 'sensor_msgs/msg/CameraInfo',
+              [camera_info_from_calibration(calibration, Header(frame_id='cam'))] * 3)
+        for side, calibration in zip(('left', 'right'), own)]
+    assert isinstance(topics[-1].messages[0], CameraInfo)
+    bag = tmp_path / 'own'
+    write_bag(bag, 9, 'mcap', topics)
+    with ros_nodes() as (context, _, add):
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        kept = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+            Parameter('bag_camera_info', value=False)]))
+        for calibration, expected in zip(driver.calibrations, own):
+            np.testing.assert_array_equal(calibration.projection, expected.projection)
+        for calibration, expected in zip(kept.calibrations, default):
+            np.testing.assert_array_equal(calibration.projection, expected.projection)

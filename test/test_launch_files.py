@@ -128,6 +128,8 @@ def test_launch_arguments_reach_the_driver(rig_files):
     assert (overrides['source'].value, overrides['source'].value_type) == ('spi', str)
     assert overrides['left_device'].value == '/dev/spidev1.0'
     assert overrides['right_i2c_bus'] == 3 and overrides['use_sim_time'] is True
+    # URLs given: the driver publishes them, not a replayed bag's own camera_info.
+    assert overrides['bag_camera_info'] is False
     assert overrides['left.camera_info_url'].value == urls[0]
     assert driver.respawn is False and driver.namespace == 'rig2'
     for node in nodes:
@@ -228,6 +230,18 @@ def test_the_replay_transforms_come_from_the_bags_camera_info():
     stereo = [transform_of(node) for node in nodes
               if node.executable == 'static_transform_publisher'][2]
     from st_stereo.sim.sequences import standard_sequences
+    r, t = standard_sequences()['office'].rig.stereo_extrinsics()
+    np.testing.assert_allclose(stereo[2], -r.T @ t, atol=1e-9)
+    np.testing.assert_allclose(Rotation.from_quat(stereo[3]).as_matrix(), r.T, atol=1e-9)
+
+
+def test_the_rig_launch_replaying_a_bag_takes_its_transforms_from_the_bags_camera_info():
+    # The driver publishes a replayed bag's own camera_info (bag_camera_info): the stereo
+    # transform must be that calibration's too, not the parameter file's default.
+    from st_stereo.sim.sequences import standard_sequences
+    _, nodes = launch('st_stereo.launch.py', source='bag', bag=str(BAG))
+    stereo = [transform_of(node) for node in nodes
+              if node.executable == 'static_transform_publisher'][2]
     r, t = standard_sequences()['office'].rig.stereo_extrinsics()
     np.testing.assert_allclose(stereo[2], -r.T @ t, atol=1e-9)
     np.testing.assert_allclose(Rotation.from_quat(stereo[3]).as_matrix(), r.T, atol=1e-9)

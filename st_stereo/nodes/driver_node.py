@@ -28,6 +28,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -199,9 +200,36 @@ class DriverNode(Node):
                                  'replay) is empty')
             # Images of a recorded pair share its stamp: the skew is only in its pair_info.
             self.recorded_pair_info = RecordedPairInfo(self._value('bag'))
-            return open_bag_sides(self._value('bag')), [None, None]
+            sides = open_bag_sides(self._value('bag'))
+            if self._value('bag_camera_info'):
+                self._use_recorded_calibrations(self._value('bag'))
+            return sides, [None, None]
         raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
                          f'{self.source!r}')
+
+    def _use_recorded_calibrations(self, bag):
+        """Publish the bag's own camera_info (its first of each camera), if it has them."""
+        from st_stereo.bag_streams import recorded_calibrations
+        try:
+            recorded = recorded_calibrations(bag)
+        except ValueError as error:      # no camera_info in the bag (or not a usable one)
+            self.get_logger().info(f'{error}: publishing the camera_info_url calibrations '
+                                   f'({", ".join(self.info_urls)})')
+            return
+        for calibration, side in zip(recorded, SIDES):
+            if (calibration.width, calibration.height) != (80, 60):
+                raise ValueError(f'{bag}: {side}/camera_info is {calibration.width}x'
+                                 f'{calibration.height}, the Lepton 2 is 80x60')
+        differ = [side for side, own, given in zip(SIDES, recorded, self.calibrations)
+                  if not (np.array_equal(own.projection, given.projection) and
+                          np.array_equal(own.camera_matrix, given.camera_matrix) and
+                          np.array_equal(own.distortion, given.distortion) and
+                          np.array_equal(own.rectification, given.rectification))]
+        self.calibrations = list(recorded)
+        self.get_logger().info(
+            f"{bag}: publishing the bag's own camera_info" +
+            (f' (not the camera_info_url of {" and ".join(differ)}: bag_camera_info false '
+             f'for those)' if differ else ''))
 
     # --- live cameras: a thread per camera, a pairing thread --------------------------------
     def _start_live(self, devices, buses, spi_hz):

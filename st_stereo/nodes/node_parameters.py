@@ -28,6 +28,9 @@ DRIVER_PARAMETERS = [
                   'USB boards) or bag (the raw image topics of a rosbag2)'),
     NodeParameter('bag', '', 'bag: rosbag2 directory holding left/image_raw and '
                   'right/image_raw'),
+    NodeParameter('bag_camera_info', True, "bag: publish the bag's own calibration (its first "
+                  'left/camera_info and right/camera_info) when it has one, else the '
+                  "camera_info_url's (logged); false: always the camera_info_url's"),
     NodeParameter('telemetry', 'off', 'camera telemetry rows: off, header or footer (a capture '
                   'says its own, or it is detected from its data)'),
     NodeParameter('max_pair_delta', 0.06, 'largest difference of the two acquisition times of '
