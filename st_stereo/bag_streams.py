@@ -80,6 +80,7 @@ def recorded_calibrations(path):
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
     found = {}
+    topics = sorted(reader.topics)
     try:
         wanted = {c.id: side for c in reader.connections for side in SIDES
                   if c.topic.endswith(f'{side}/camera_info') and
@@ -97,7 +98,7 @@ def recorded_calibrations(path):
     missing = [side for side in SIDES if side not in found]
     if missing:
         raise ValueError(f'{path}: no {" or ".join(missing)}/camera_info message (topics: '
-                         f'{sorted(reader.topics)})')
+                         f'{topics})')
     return found['left'], found['right']
 
 

@@ -467,3 +467,30 @@ def test_a_bag_with_its_own_calibration_is_replayed_with_it(tmp_path):
             np.testing.assert_array_equal(calibration.projection, expected.projection)
         for calibration, expected in zip(kept.calibrations, default):
             np.testing.assert_array_equal(calibration.projection, expected.projection)
+
+
+def test_a_bags_stamps_are_published_to_the_nanosecond(tmp_path):
+    # The review: stamps went through float seconds and came out up to 358 ns off, so a
+    # replayed image no longer joined other recorded topics by its exact stamp.
+    from rclpy.qos import qos_profile_sensor_data
+    from rosbag2_layouts import write_bag
+    from sensor_msgs.msg import Image
+    from st_stereo.bag_streams import raw_image_messages
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i + 0.000000123 for i in range(6)]
+    bag = tmp_path / 'stamps'
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps))
+    recorded = sorted({stamp for side, stamp, _ in raw_image_messages(bag) if side == 'left'})
+    received = []
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('listener', context=context, namespace='stereo'))
+        listener.create_subscription(
+            Image, 'left/image_raw',
+            lambda msg: received.append(msg.header.stamp.sec * 1_000_000_000 +
+                                        msg.header.stamp.nanosec), qos_profile_sensor_data)
+        spin_for(executor, 0.5)
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        spin_until_finished(executor, driver, 30.0)
+        spin_for(executor, 0.5)
+    assert driver.published == 6 and sorted(received) == recorded

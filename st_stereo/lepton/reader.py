@@ -48,6 +48,9 @@ class LeptonFrame:
     # just before it (the previous frame's last copy) was read too. After a resync, a CRC drop
     # or a lost frame the first frame seen may be its second or third copy (38 or 76 ms late).
     stamp_exact: bool = True
+    # A recorded frame's own stamp, integer nanoseconds (a bag's header stamp), published as it
+    # is: ``stamp`` in float seconds is off by up to a few hundred nanoseconds.
+    stamp_ns: int = None
 
 
 def first_copy_known(previous_stamp, stamp, period_s):

@@ -23,7 +23,7 @@ class BagSide:
 
     def __init__(self, topic, messages, start=None):
         self.topic = topic
-        self.messages = messages           # [(stamp, Image)], in bag order
+        self.messages = messages           # [(stamp s, Image, stamp ns)], in bag order
         self.position = 0
         self.counters = LeptonCounters()
         self.transport = _BagTime(self)
@@ -42,7 +42,7 @@ class BagSide:
         """Return the next frame; EndOfStream after the last."""
         if self.position >= len(self.messages):
             raise EndOfStream()
-        stamp, msg = self.messages[self.position]
+        stamp, msg, stamp_ns = self.messages[self.position]
         self.position += 1
         self.counters.frames_completed += 1
         try:
@@ -52,14 +52,14 @@ class BagSide:
             self.last_problem = f'{self.topic} message {self.position - 1}: {error}'
             return None
         self.counters.unique_frames += 1
-        return LeptonFrame(pixels.copy(), stamp, self.position - 1)
+        return LeptonFrame(pixels.copy(), stamp, self.position - 1, stamp_ns=stamp_ns)
 
 
 def open_bag_sides(path):
     """Open the left and right image_raw streams of a bag (topics ending in side/image_raw)."""
     streams = {'left': [], 'right': []}
     for side, stamp_ns, msg in raw_image_messages(path):
-        streams[side].append((stamp_ns * 1e-9, msg))
+        streams[side].append((stamp_ns * 1e-9, msg, stamp_ns))
     firsts = [streams[side][0][0] for side in ('left', 'right') if streams[side]]
     start = min(firsts) if firsts else 0.0
     return [BagSide(f'{side}/image_raw', streams[side], start) for side in ('left', 'right')]

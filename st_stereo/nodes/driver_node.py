@@ -27,6 +27,7 @@ import queue
 import threading
 import time
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -376,6 +377,12 @@ class DriverNode(Node):
         stamp_s = self._to_stamp_s(pair.stamp, live, clock_start, base)
         header = Header()
         header.stamp = _stamp_msg(stamp_s)
+        if not live and not clock_start and pair.left.stamp_ns is not None and \
+                pair.right.stamp_ns is not None:
+            # A bag's pair keeps its recorded stamp to the nanosecond (the images' midpoint,
+            # their shared stamp when the suite recorded them).
+            exact = (pair.left.stamp_ns + pair.right.stamp_ns) // 2
+            header.stamp = Time(sec=exact // 1_000_000_000, nanosec=exact % 1_000_000_000)
         for index, frame in enumerate((pair.left, pair.right)):
             header_side = Header(stamp=header.stamp, frame_id=self.frame_ids[index])
             self.image_pubs[index].publish(conversions.image_to_msg(frame.pixels, header_side))
