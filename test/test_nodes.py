@@ -649,3 +649,26 @@ def test_a_camera_info_opencv_or_rectification_cannot_use_is_dropped_and_named(r
     resized.width = 81
     pair(resized)
     assert 'left is 81x60 but right is 80x60' in rectifier.last_error
+
+
+def test_pairs_the_exact_stamp_sync_drops_are_an_error_naming_it(ros):
+    # The review: with the right stream stamped 1 ns later than the left one every pair was
+    # dropped while the rectifier said OK "rectifying" and the matcher "No events recorded.".
+    context, _, add = ros
+    rectifier = add(RectifierNode(context=context))
+    published = []
+    rectifier.diagnostics_pub.publish = published.append
+    rectifier._publish_diagnostics()                 # the watch's first look
+    for sec in range(1, 16):
+        left, right = Header(frame_id='left'), Header(frame_id='right')
+        left.stamp.sec, right.stamp.sec, right.stamp.nanosec = sec, sec, 1
+        rectifier.sync.add(0, image_to_msg(np.full((60, 80), 8000, np.uint16), left))
+        rectifier.sync.add(1, image_to_msg(np.full((60, 80), 8000, np.uint16), right))
+        rectifier.sync.add(2, _info(80, 60, 0.0))
+    assert rectifier.counts['pairs'] == 0 and sum(rectifier.sync.dropped) > 0
+    rectifier._publish_diagnostics()
+    status = published[-1].status[0]
+    assert status.level == DiagnosticStatus.ERROR
+    assert status.message.startswith('no pair in the last period: ')
+    assert 'dropped by the exact-stamp sync of left/image_raw, right/image_raw, ' \
+        'left/camera_info, right/camera_info (their stamps must be equal)' in status.message

@@ -184,6 +184,17 @@ def test_the_matcher_waits_for_a_pair_info_that_comes_after_its_images(people_80
         assert counts['pairs_without_previous'] == 1
         assert counts['pairs_without_skew'] == 1
         assert matcher.counts['stale_kept_for_skew'] == 0       # nothing was dropped
+        # Said, not only counted (a review: pair_info stamped 1 ns off its images turned the
+        # compensation off under an OK status).
+        assert matcher.counts['pair_info_wait_expired'] == 1
+        assert 'no pair_info with the stamp 4.000000000 in 2 s' in matcher.last_pair_info_problem
+        published = []
+        matcher.diagnostics_pub.publish = published.append
+        matcher._publish_diagnostics()
+        status = published[-1].status[0]
+        assert status.level == diagnostics.WARN and \
+            status.message.startswith('the last pair was matched without skew compensation: '
+                                      'no pair_info with the stamp 4.000000000')
     finally:
         for node in (source, matcher):
             node.destroy_node()

@@ -39,7 +39,8 @@ from st_stereo.nodes.parameters import declare_node_parameters, declare_st_param
     validate_changes
 from st_stereo.nodes.runtime import LatestSlot, RELIABLE, spin_node, \
     with_default_namespace
-from st_stereo.nodes.sync import stamp_key, subscribe_exact
+from st_stereo.nodes.sync import stamp_key, subscribe_exact, sync_drop_message, \
+    SyncDropWatch
 from stereo_msgs.msg import DisparityImage
 
 
@@ -90,6 +91,9 @@ class MatcherNode(Node):
         topics = [(Image, 'left/image_rect'), (Image, 'right/image_rect'),
                   (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
+        self.sync_topics = topics
+        self.sync_watch = SyncDropWatch(self.sync)
+        self.last_pair_without_pair_info = False     # it waited pair_info_wait in vain
         self.skew = SkewCompensator()
         # Static matches the previous pair did not make alike are dropped (temporal_tolerance_px).
         self.temporal = TemporalCheck()
@@ -101,7 +105,7 @@ class MatcherNode(Node):
                        'dropped_internal_error': 0, 'dropped_at_shutdown': 0, 'empty_clouds': 0,
                        'pair_info_unreadable': 0, 'waited_for_pair_info': 0,
                        'stamps_not_on_node_clock': 0, 'stale_kept_for_skew': 0,
-                       'stale_not_kept_for_skew': 0}
+                       'stale_not_kept_for_skew': 0, 'pair_info_wait_expired': 0}
         self._pair_times_lock = threading.Lock()
         self._models = {}            # (left P, right P) -> StereoModel, the last few
         self.last_drop_reason = ''
@@ -218,6 +222,7 @@ class MatcherNode(Node):
                 self.pair_times.pop(next(iter(self.pair_times)))
         self.pair_info_seen = True
         if self._waiting is not None and stamp_key(self._waiting[1][0]) == stamp:
+            self.last_pair_without_pair_info = False
             self._release_waiting()
 
     def _release_waiting(self):
@@ -229,6 +234,13 @@ class MatcherNode(Node):
     def _release_stale_pair(self):
         if self._waiting is not None and \
                 time.monotonic() - self._waiting[0] > self.pair_info_wait:
+            stamp = stamp_key(self._waiting[1][0])
+            self.counts['pair_info_wait_expired'] += 1
+            self.last_pair_without_pair_info = True
+            self.last_pair_info_problem = (
+                f'no pair_info with the stamp {stamp[0]}.{stamp[1]:09d} in '
+                f'{self.pair_info_wait:g} s (pair_info_wait): matched without skew '
+                f'compensation (pair_info must carry the stamp of its pair)')
             self._release_waiting()       # matched without skew compensation (counted)
 
     def _pair_times_of(self, msg):
@@ -300,6 +312,8 @@ class MatcherNode(Node):
             self._waiting = (time.monotonic(), messages)
             self._stale_timer.reset()
             return
+        if known:
+            self.last_pair_without_pair_info = False
         self._submit(messages)
 
     def _match_pair(self, left_msg, right_msg, left_info, right_info, arrival):
@@ -391,6 +405,13 @@ class MatcherNode(Node):
                            result.timings_ms.items()})
         if result is not None and not len(result) and level == diagnostics.OK:
             level, summary = diagnostics.WARN, 'the last pair gave no point (see the rejections)'
+        if self.last_pair_without_pair_info and level != diagnostics.ERROR:
+            level, summary = diagnostics.WARN, 'the last pair was matched without skew ' \
+                f'compensation: {self.last_pair_info_problem}'
+        stalled = self.sync_watch.recent(self.counts['pairs'])
+        if stalled:
+            level, summary = diagnostics.ERROR, sync_drop_message(
+                stalled, [name for _, name in self.sync_topics])
         if self.last_error:
             level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         status = diagnostics.status(diagnostics.status_name(self, 'ST matching'), 'st_stereo',

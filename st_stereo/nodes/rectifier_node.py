@@ -24,7 +24,7 @@ from st_stereo.nodes import conversions, diagnostics
 from st_stereo.nodes.node_parameters import RECTIFIER_PARAMETERS
 from st_stereo.nodes.parameters import declare_node_parameters
 from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
-from st_stereo.nodes.sync import subscribe_exact
+from st_stereo.nodes.sync import subscribe_exact, sync_drop_message, SyncDropWatch
 
 
 class RectifierNode(Node):
@@ -49,6 +49,8 @@ class RectifierNode(Node):
         topics = [(Image, 'left/image_raw'), (Image, 'right/image_raw'),
                   (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
+        self.sync_topics = [name for _, name in topics]
+        self.sync_watch = SyncDropWatch(self.sync)
         self.rectifier = None
         self._calibration_key = None
         self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0}
@@ -104,6 +106,9 @@ class RectifierNode(Node):
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         elif not self.counts['rectified']:
             level, message = diagnostics.WARN, 'no pair rectified yet'
+        stalled = self.sync_watch.recent(self.counts['pairs'])
+        if stalled and not self.last_error:
+            level, message = diagnostics.ERROR, sync_drop_message(stalled, self.sync_topics)
         status = diagnostics.status(diagnostics.status_name(self, 'rectification'), 'st_stereo',
                                     level, message, values)
         diagnostics.publish(self, self.diagnostics_pub, [status])

@@ -50,6 +50,35 @@ class ExactTimeSync:
                 self.dropped[index] += 1
 
 
+class SyncDropWatch:
+    """
+    Whether an ExactTimeSync dropped messages since the last look while nothing got through.
+
+    ``recent(passed)``: ``passed`` is the caller's count of pairs that got through; returns the
+    messages dropped since the previous call when no pair passed in between (the four topics'
+    stamps no longer meet), else 0.
+    """
+
+    def __init__(self, sync):
+        self.sync = sync
+        self._dropped = 0
+        self._passed = 0
+
+    def recent(self, passed):
+        """Return the messages dropped since the last call if no pair passed meanwhile."""
+        dropped = sum(self.sync.dropped)
+        new, self._dropped = dropped - self._dropped, dropped
+        stalled = passed == self._passed
+        self._passed = passed
+        return new if stalled else 0
+
+
+def sync_drop_message(count, topics):
+    """Return the status text of messages the exact-stamp sync dropped, no pair through."""
+    return (f'no pair in the last period: {count} messages dropped by the exact-stamp sync of '
+            f'{", ".join(topics)} (their stamps must be equal)')
+
+
 def subscribe_exact(node, topics, callback, qos):
     """
     Subscribe to ``[(msg_type, topic), ...]`` and call back with one message of each topic.
