@@ -95,8 +95,11 @@ _DEFINITIONS_QUERY = 'FROM message_definitions'
 def _skip_empty_definitions(cursor, statement, bindings):
     # Execution tracer of the connection rosbags' Sqlite3Reader._open makes: on its query of
     # message_definitions only, drop the rows rosbag2 left without a definition.
-    if _DEFINITIONS_QUERY in statement:
-        cursor.row_trace = lambda _, row: row if row[1] else None
+    # Any other query on the same cursor gets its rows untouched: rosbags asks MIN/MAX of the
+    # timestamps on it next, whose one row of an empty bag, (None, None, 0), the definitions'
+    # filter dropped ("not enough values to unpack" on an empty Iron/Jazzy sqlite3 bag).
+    cursor.row_trace = (lambda _, row: row if row[1] else None) \
+        if _DEFINITIONS_QUERY in statement else None
     return True
 
 

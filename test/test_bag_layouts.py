@@ -222,3 +222,22 @@ def test_bag_play_offers_the_recorded_reliability_and_durability(
         for node in (listener, player):
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.parametrize('version', [8, 9])
+def test_an_empty_sqlite3_bag_opens_and_holds_no_message(tmp_path, version):
+    # A review: an empty Iron/Jazzy sqlite3 bag was "not enough values to unpack" (the
+    # message_definitions filter stayed on the cursor rosbags' next query used).
+    # rosbags' writer: the fixture writes recordings with messages.
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_typestore, Stores
+    from st_stereo.bag_reading import bag_messages, open_bag
+    bag = tmp_path / 'empty'
+    with Writer(bag, version=version, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        writer.add_connection('/chatter', 'std_msgs/msg/String',
+                              typestore=get_typestore(Stores.ROS2_JAZZY))
+    reader = open_bag(bag)
+    try:
+        assert list(bag_messages(reader)) == [] and reader.message_count == 0
+    finally:
+        reader.close()
