@@ -61,3 +61,17 @@ def test_right_camera_first_is_rejected():
     right = [[80.0, 0, 40.0, 44.0], [0, 80.0, 30.0, 0], [0, 0, 1, 0]]
     with pytest.raises(ValueError, match='P\\[0,3\\]'):
         StereoModel.from_projection_matrices(left, right)
+
+
+@pytest.mark.parametrize('index, value, name', [(0, 90.0, 'fx'), (5, 90.0, 'fy'),
+                                                (6, 31.0, 'cy')])
+def test_two_projections_not_of_one_rectified_pair_are_refused(index, value, name):
+    # A review: a right P whose rows do not align with the left's (a raw camera_info given to
+    # the matcher) was triangulated as if rectified.
+    left = [83.9, 0.0, 39.5, 0.0, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    right = [83.9, 0.0, 41.0, -46.0, 0.0, 83.9, 29.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert StereoModel.from_projection_matrices(left, right).cx_right == 41.0
+    right[index] = value
+    with pytest.raises(ValueError, match=f'right projection: {name} .*not the P of one '
+                                         f'rectified pair'):
+        StereoModel.from_projection_matrices(left, right)

@@ -79,6 +79,16 @@ class StereoModel:
         if not baseline > 0:
             raise ValueError(f'right projection: P[0,3] = {right[0, 3]} gives baseline '
                              f'{baseline} m; expected P[0,3] = -fx * B < 0 (left camera first)')
+        # One rectified pair shares fx, fy and cy (rows aligned): two P that do not are not
+        # (e.g. the raw camera_info given to the matcher instead of the rectifier's).
+        checks = (('fx', 0, 0, 1e-3 * abs(fx)), ('fy', 1, 1, 1e-3 * abs(left[1, 1])),
+                  ('cy', 1, 2, 0.01))
+        for name, row, column, tolerance in checks:
+            if not abs(right[row, column] - left[row, column]) <= tolerance:
+                raise ValueError(
+                    f'right projection: {name} {right[row, column]:g}, left '
+                    f'{left[row, column]:g}: not the P of one rectified pair (rows must align: '
+                    f'the camera_info of the rectifier)')
         return cls(fx=float(fx), fy=float(left[1, 1]), cx=float(left[0, 2]),
                    cy=float(left[1, 2]), baseline=float(baseline), cx_right=float(right[0, 2]))
 
