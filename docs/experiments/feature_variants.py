@@ -9,16 +9,9 @@ default row reproduces docs/accuracy.md's ST figures.
 Run: ``.venv/bin/python docs/experiments/feature_variants.py`` (about five minutes).
 """
 
-from pathlib import Path
-
-import numpy as np
+from poc_iterations import FRAMES, THERMAL   # the protocol's frames and shifts, as there
 from st_stereo.tools import eval_subpixel
 
-THERMAL = Path(__file__).resolve().parents[3] / 'shared' / 'data' / 'thermal'
-FINE = tuple(np.arange(0.0, 30.0 + 1e-9, 0.125))
-COARSE = tuple(np.arange(0.0, 30.0 + 1e-9, 0.5))
-FRAMES = (('people_lab_180x180.png', FINE), ('panel_flir_c2_80x60.png', COARSE),
-          ('ducks.png', COARSE), ('floor_heating.png', COARSE), ('moving_car.png', COARSE))
 VARIANTS = {'default (phasecong3, 6 orientations, 4 scales)': {},
             'monogenic': {'pc_method': 'monogenic'},
             '4 orientations': {'pc_orientations': 4},

@@ -23,26 +23,27 @@ class BagSide:
 
     def __init__(self, topic, messages, start=None):
         self.topic = topic
-        self.messages = messages           # [(stamp s, Image, stamp ns)], in bag order
+        self.messages = messages           # [(stamp ns, Image)], in bag order
         self.position = 0
         self.counters = LeptonCounters()
         self.transport = _BagTime(self)
         # Both sides' times count from one start (the earlier side's first stamp): a camera
         # recorded a second later must wait that second, not start with the other one.
-        self.start = start if start is not None else (messages[0][0] if messages else 0.0)
+        self.start = start if start is not None else \
+            (messages[0][0] * 1e-9 if messages else 0.0)
         self.last_problem = ''             # why the last refused frame was refused
 
     def next_time(self):
         """Time of the next frame relative to the first (for pacing and interleaving)."""
         if self.position >= len(self.messages):
             return float('inf')
-        return self.messages[self.position][0] - self.start
+        return self.messages[self.position][0] * 1e-9 - self.start
 
     def read_frame(self, timeout_s=1.0):
         """Return the next frame; EndOfStream after the last."""
         if self.position >= len(self.messages):
             raise EndOfStream()
-        stamp, msg, stamp_ns = self.messages[self.position]
+        stamp_ns, msg = self.messages[self.position]
         self.position += 1
         self.counters.frames_completed += 1
         try:
@@ -52,15 +53,16 @@ class BagSide:
             self.last_problem = f'{self.topic} message {self.position - 1}: {error}'
             return None
         self.counters.unique_frames += 1
-        return LeptonFrame(pixels.copy(), stamp, self.position - 1, stamp_ns=stamp_ns)
+        return LeptonFrame(pixels.copy(), stamp_ns * 1e-9, self.position - 1,
+                           stamp_ns=stamp_ns)
 
 
 def open_bag_sides(path):
     """Open the left and right image_raw streams of a bag (topics ending in side/image_raw)."""
     streams = {'left': [], 'right': []}
     for side, stamp_ns, msg in raw_image_messages(path):
-        streams[side].append((stamp_ns * 1e-9, msg, stamp_ns))
-    firsts = [streams[side][0][0] for side in ('left', 'right') if streams[side]]
+        streams[side].append((stamp_ns, msg))
+    firsts = [streams[side][0][0] * 1e-9 for side in ('left', 'right') if streams[side]]
     start = min(firsts) if firsts else 0.0
     return [BagSide(f'{side}/image_raw', streams[side], start) for side in ('left', 'right')]
 

@@ -15,13 +15,17 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
                           DiagnosticStatus.STALE)
 
 
-def target_frequency(value):
-    """Return a ``target_frequency`` parameter as a float; ValueError unless finite and > 0."""
+def positive_number(name, value, unit):
+    """Return a parameter's value as a float; ValueError naming it unless finite and > 0."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             not (math.isfinite(value) and value > 0):
-        raise ValueError(f'target_frequency: expected a finite number above 0 Hz, got '
-                         f'{value!r}')
+        raise ValueError(f'{name}: expected a finite number above 0 {unit}, got {value!r}')
     return float(value)
+
+
+def target_frequency(value):
+    """Return a ``target_frequency`` parameter as a float (``positive_number``, Hz)."""
+    return positive_number('target_frequency', value, 'Hz')
 
 
 class FrequencyTracker:

@@ -15,7 +15,6 @@ callbacks, and a pair still waiting when a newer one arrives is dropped and coun
 queue of old ones.
 """
 
-import math
 import threading
 import time
 
@@ -68,6 +67,9 @@ def _pair_images(left_msg, right_msg, left_info, right_info):
     return left, right
 
 
+PERIOD_UNITS = {'target_frequency': 'Hz', 'pair_info_wait': 's'}
+
+
 class MatcherNode(Node):
     """Thin wrapper: messages -> StereoMatcher -> messages."""
 
@@ -91,7 +93,7 @@ class MatcherNode(Node):
         topics = [(Image, 'left/image_rect'), (Image, 'right/image_rect'),
                   (CameraInfo, 'left/camera_info'), (CameraInfo, 'right/camera_info')]
         self.sync = subscribe_exact(self, topics, self._on_pair, qos_profile_sensor_data)
-        self.sync_topics = topics
+        self.sync_topics = [name for _, name in topics]
         self.sync_watch = SyncDropWatch(self.sync)
         self.last_pair_without_pair_info = False     # it waited pair_info_wait in vain
         self.skew = SkewCompensator()
@@ -114,12 +116,8 @@ class MatcherNode(Node):
         # A pair whose pair_info has not arrived yet (another topic: an executor may deliver
         # it after the images) waits for it, at most pair_info_wait seconds, once it has been
         # seen at all (a driver without it never makes a pair wait).
-        self.pair_info_wait = self.get_parameter('pair_info_wait').value
-        if isinstance(self.pair_info_wait, bool) or \
-                not isinstance(self.pair_info_wait, (int, float)) or \
-                not (math.isfinite(self.pair_info_wait) and self.pair_info_wait > 0):
-            raise ValueError(f'pair_info_wait: expected a finite number above 0 s, got '
-                             f'{self.pair_info_wait!r}')
+        self.pair_info_wait = diagnostics.positive_number(
+            'pair_info_wait', self.get_parameter('pair_info_wait').value, 's')
         self.pair_info_seen = False
         self._waiting = None         # (monotonic arrival, the pair's four messages)
         # On the steady clock: under use_sim_time a /clock that stops (a bag's end) must not
@@ -180,13 +178,11 @@ class MatcherNode(Node):
     def _on_parameters(self, parameters):
         for parameter in parameters:
             if parameter.name in ('target_frequency', 'pair_info_wait'):
-                if isinstance(parameter.value, bool) or \
-                        not isinstance(parameter.value, (int, float)) or \
-                        not (math.isfinite(parameter.value) and parameter.value > 0):
-                    return SetParametersResult(
-                        successful=False,
-                        reason=f'{parameter.name}: expected a finite number above 0, got '
-                               f'{parameter.value!r}')
+                try:
+                    diagnostics.positive_number(parameter.name, parameter.value,
+                                                PERIOD_UNITS[parameter.name])
+                except ValueError as error:
+                    return SetParametersResult(successful=False, reason=str(error))
         result, config = validate_changes(self.config, parameters)
         if not result.successful:
             return result
@@ -410,8 +406,7 @@ class MatcherNode(Node):
                 f'compensation: {self.last_pair_info_problem}'
         stalled = self.sync_watch.recent(self.counts['pairs'])
         if stalled:
-            level, summary = diagnostics.ERROR, sync_drop_message(
-                stalled, [name for _, name in self.sync_topics])
+            level, summary = diagnostics.ERROR, sync_drop_message(stalled, self.sync_topics)
         if self.last_error:
             level, summary = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         status = diagnostics.status(diagnostics.status_name(self, 'ST matching'), 'st_stereo',
