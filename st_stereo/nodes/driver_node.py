@@ -381,8 +381,7 @@ class DriverNode(Node):
                 pair.right.stamp_ns is not None:
             # A bag's pair keeps its recorded stamp to the nanosecond (the images' midpoint,
             # their shared stamp when the suite recorded them).
-            exact = (pair.left.stamp_ns + pair.right.stamp_ns) // 2
-            header.stamp = Time(sec=exact // 1_000_000_000, nanosec=exact % 1_000_000_000)
+            header.stamp = _stamp_of_ns((pair.left.stamp_ns + pair.right.stamp_ns) // 2)
         for index, frame in enumerate((pair.left, pair.right)):
             header_side = Header(stamp=header.stamp, frame_id=self.frame_ids[index])
             self.image_pubs[index].publish(conversions.image_to_msg(frame.pixels, header_side))
@@ -593,8 +592,11 @@ class DriverNode(Node):
 
 def _stamp_msg(stamp_s):
     """builtin_interfaces/Time of a stamp in seconds (never negative)."""
-    from builtin_interfaces.msg import Time
-    nanoseconds = max(0, int(round(stamp_s * 1e9)))
+    return _stamp_of_ns(max(0, int(round(stamp_s * 1e9))))
+
+
+def _stamp_of_ns(nanoseconds):
+    """builtin_interfaces/Time of a stamp in integer nanoseconds."""
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
