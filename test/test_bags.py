@@ -412,7 +412,7 @@ def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finis
     start = 1_714_557_600.0
     stamps = [start + 0.1136 * i for i in range(4)]
     bag = tmp_path / 'encoding'
-    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='16UC1'))
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='rgb8'))
     with ros_nodes() as (context, executor, add):
         driver = add(DriverNode(context=context, parameter_overrides=[
             Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
@@ -422,9 +422,26 @@ def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finis
     assert driver.published == 0
     assert (statuses[0].level, statuses[0].message) == \
         (DiagnosticStatus.ERROR, 'finished: the source gave no pair')
-    assert "image encoding: expected one of mono16, mono8, 32FC1, got '16UC1'" in \
+    assert "image encoding: expected one of mono16, 16UC1, mono8, 32FC1, got 'rgb8'" in \
         statuses[1].message
     assert 'left/image_raw message 3' in statuses[1].message
+
+
+def test_a_bag_of_16uc1_counts_replays_as_mono16(tmp_path):
+    # libuvc_camera (PureThermal boards) records Y16 as 16UC1: the same bytes as mono16. The
+    # driver's bag source refused every such frame.
+    from rosbag2_layouts import write_bag
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i for i in range(4)]
+    bag = tmp_path / 'uvc'
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='16UC1'))
+    with ros_nodes() as (context, executor, add):
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        spin_until_finished(executor, driver, 30.0)
+        status = driver._pairs_status(time.monotonic())
+    assert driver.published == 4
+    assert (status.level, status.message) == (DiagnosticStatus.OK, 'finished: 4 pairs published')
 
 
 @pytest.mark.parametrize('name, value, message', [

@@ -12,6 +12,7 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from scipy import ndimage
 from ros_helpers import GatedMatch, ideal_camera_info, keep_statuses, spin_until
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.calibration.files import CalibrationError
@@ -181,7 +182,84 @@ def test_wrong_encoding_is_dropped_and_counted(ros):
         msg.header = header
         rectifier.sync.add(index, msg)
     assert rectifier.counts['dropped_bad_input'] == 1
-    assert 'expected mono16, got mono8' in rectifier.last_error
+    assert 'expected mono16 or 16UC1, got mono8' in rectifier.last_error
+
+
+def _image_as(pixels, header, encoding, pad_bytes=0, big_endian=False):
+    """An Image of counts as another driver would write it: encoding, row padding, order."""
+    msg = Image(header=header, height=pixels.shape[0], width=pixels.shape[1],
+                encoding=encoding, is_bigendian=int(big_endian))
+    rows = pixels.astype('>u2' if big_endian else '<u2').view(np.uint8)
+    rows = np.concatenate([rows, np.full((rows.shape[0], pad_bytes), 0xAB, np.uint8)], axis=1)
+    msg.step = rows.shape[1]
+    msg.data = rows.tobytes()
+    return msg
+
+
+VARIANTS = [('mono16', 0, False), ('16UC1', 0, False), ('16UC1', 6, False),
+            ('mono16', 2, True)]
+
+
+class RectifiedImages(Node):
+    def __init__(self, context):
+        super().__init__('rectified_images', context=context, namespace='stereo')
+        self.images = []
+        self.create_subscription(Image, 'left/image_rect', self.images.append,
+                                 qos_profile_sensor_data)
+
+
+def _counts_pair(sec, encoding, pad, big, border=0):
+    rng = np.random.default_rng(5)
+    texture = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (60, 80)), 1.0)
+    texture = np.rint(8000 + 800 * texture).astype(np.uint16)
+    left, right = texture.copy(), np.roll(texture, -9, axis=1)      # about 3 m
+    left[:, :border] = right[:, :border] = 0          # pixels without data (rectified)
+    header = Header(frame_id='left')
+    header.stamp.sec = sec
+    messages = [_image_as(left, header, encoding, pad, big),
+                _image_as(right, header, encoding, pad, big),
+                _info(80, 60, 0.0), _info(80, 60, -46.3)]
+    for msg in messages:
+        msg.header = header
+    return messages
+
+
+def test_counts_as_libuvc_camera_writes_them_are_rectified_alike(ros):
+    # libuvc_camera publishes a PureThermal board's Y16 stream as 16UC1 (the same bytes as
+    # mono16); sensor_msgs/Image also allows padded rows and big-endian data. The rectifier
+    # refused 16UC1 ('expected mono16') and padded rows: the same counts, the same image.
+    context, executor, add = ros
+    rectifier = add(RectifierNode(context=context))
+    collector = add(RectifiedImages(context))
+    spin_until(executor, lambda: False, 1.0)          # discovery
+    for sec, variant in enumerate(VARIANTS, start=1):
+        for index, msg in enumerate(_counts_pair(sec, *variant)):
+            rectifier.sync.add(index, msg)
+        spin_until(executor, lambda: len(collector.images) == sec, 30.0)
+    assert rectifier.counts['dropped_bad_input'] == 0
+    assert len(collector.images) == len(VARIANTS)
+    assert {msg.encoding for msg in collector.images} == {'mono16'}
+    assert len({bytes(msg.data) for msg in collector.images}) == 1
+
+
+def test_rectified_counts_in_16uc1_are_matched_as_mono16_with_their_border(ros):
+    # image_proc keeps its input's encoding: a 16UC1 camera gives 16UC1 rectified images,
+    # whose 0 is a pixel without data as in mono16 (a 12-column border here).
+    context, executor, add = ros
+    matcher = add(MatcherNode(context=context, parameter_overrides=[
+        Parameter('keep_latest', value=False)]))
+    collector = add(Collector(context))
+    spin_until(executor, lambda: False, 1.0)          # discovery
+    for sec, variant in enumerate(VARIANTS, start=1):
+        _feed(matcher, _counts_pair(sec, *variant, border=12))
+        spin_until(executor, lambda: len(collector.clouds) == sec, 30.0)
+    assert matcher.counts['dropped_bad_input'] == 0
+    assert len(collector.clouds) == len(VARIANTS)
+    first = point_cloud_array(collector.clouds[0])
+    assert len(first) > 20
+    assert np.median(first[:, 2]) == pytest.approx(46.3 / 9, rel=0.01)
+    for cloud in collector.clouds[1:]:
+        assert np.array_equal(point_cloud_array(cloud), first)
 
 
 def test_image_messages_round_trip():
@@ -191,8 +269,15 @@ def test_image_messages_round_trip():
     assert msg.step == 160 and msg.encoding == 'mono16'
     assert np.array_equal(msg_to_image(msg), pixels)
     msg.step = 100
-    with pytest.raises(ValueError, match='image step: expected 160'):
+    with pytest.raises(ValueError, match='image step: expected at least 160'):
         msg_to_image(msg)
+    msg.step = 162                                  # padded rows: the data must hold them
+    with pytest.raises(ValueError, match='image data: expected 9720 bytes, got 9600'):
+        msg_to_image(msg)
+    padded = _image_as(pixels, Header(), '16UC1', pad_bytes=4, big_endian=True)
+    assert np.array_equal(msg_to_image(padded, 'mono16'), pixels)
+    with pytest.raises(ValueError, match='expected 32FC1, got 16UC1'):
+        msg_to_image(padded, '32FC1')
 
 
 def test_cloud_layout(ros):

@@ -398,7 +398,7 @@ def test_a_left_image_not_in_raw_counts_or_empty_is_refused_and_named(ros):
     mono8 = image_to_msg(np.full((60, 80), 200, dtype=np.uint8), image.header, 'mono8')
     feed(node, cloud, mono8)
     assert node.counts['dropped_bad_input'] == 1
-    assert 'left/image_rect: encoding mono8, expected mono16' in node.last_error
+    assert 'left/image_rect: encoding mono8, expected mono16 or 16UC1' in node.last_error
     cloud, image = pair_messages(2, person_in_rectified_frame(0.2, 2.0, 2))
     feed(node, cloud, image_to_msg(np.zeros((0, 0), dtype=np.uint16), image.header))
     assert node.counts['dropped_bad_input'] == 2

@@ -42,6 +42,46 @@ def read_thermal_image(path):
     return image
 
 
+# sensor_msgs/Image encodings read here: dtype (little-endian) and bytes per pixel.
+IMAGE_ENCODINGS = {'mono16': (np.dtype('<u2'), 2), '16UC1': (np.dtype('<u2'), 2),
+                   'mono8': (np.dtype('u1'), 1), '32FC1': (np.dtype('<f4'), 4)}
+# Raw counts: one unsigned 16-bit channel. mono16 is what this suite (and image_proc, which
+# keeps its input's encoding) publishes; 16UC1 is the same bytes under the name libuvc_camera
+# gives a PureThermal board's Y16 stream (its camera_driver.cpp). Either is read as counts.
+COUNT_ENCODINGS = ('mono16', '16UC1')
+
+
+def image_from_buffer(data, encoding, width, height, step, is_bigendian=False,
+                      expected_encoding=None):
+    """
+    Decode the pixels of a sensor_msgs/Image (its fields given one by one, no ROS needed).
+
+    ``expected_encoding='mono16'`` asks for raw counts and also takes 16UC1
+    (``COUNT_ENCODINGS``). Rows padded beyond ``width`` pixels (``step`` larger than the row,
+    which sensor_msgs/Image allows) are cut to ``width``; ``is_bigendian`` is honoured.
+    Returns a read-only 2-D array; ValueError naming the bad field, expected versus got.
+    """
+    if encoding not in IMAGE_ENCODINGS:
+        raise ValueError(f'image encoding: expected one of {", ".join(IMAGE_ENCODINGS)}, got '
+                         f'{encoding!r}')
+    accepted = COUNT_ENCODINGS if expected_encoding == 'mono16' else (expected_encoding,)
+    if expected_encoding is not None and encoding not in accepted:
+        raise ValueError(f'image encoding: expected {" or ".join(accepted)}, got {encoding}')
+    dtype, size = IMAGE_ENCODINGS[encoding]
+    if is_bigendian:
+        dtype = dtype.newbyteorder('>')
+    row = size * width
+    if step < row:
+        raise ValueError(f'image step: expected at least {row} for width {width}, got {step}')
+    data = np.frombuffer(bytes(data), dtype=np.uint8)
+    if data.size != step * height:
+        raise ValueError(f'image data: expected {step * height} bytes, got {data.size}')
+    if step != row:
+        data = np.ascontiguousarray(data.reshape(height, step)[:, :row])
+        data.flags.writeable = False
+    return data.view(dtype).reshape(height, width)
+
+
 def resize_area(image, width, height):
     """Resize with pixel-area averaging (the sensor-like downsampling), float64 out."""
     return cv2.resize(np.asarray(image, dtype=np.float64), (int(width), int(height)),

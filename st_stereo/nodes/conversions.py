@@ -9,10 +9,11 @@ instead of 1.3 ms for ``list(...)``). Every reader checks encoding, size and ste
 
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from st_stereo.core import image_io
 from stereo_msgs.msg import DisparityImage
 
-ENCODINGS = {'mono16': (np.dtype('<u2'), 2), 'mono8': (np.dtype('u1'), 1),
-             '32FC1': (np.dtype('<f4'), 4)}
+ENCODINGS = image_io.IMAGE_ENCODINGS
+COUNT_ENCODINGS = image_io.COUNT_ENCODINGS     # mono16 or 16UC1: raw counts
 
 
 def image_to_msg(array, header, encoding='mono16'):
@@ -30,22 +31,14 @@ def image_to_msg(array, header, encoding='mono16'):
 
 
 def msg_to_image(msg, expected_encoding=None):
-    """Read a sensor_msgs/Image into a 2-D array; ValueError naming the bad field."""
-    if msg.encoding not in ENCODINGS:
-        raise ValueError(f'image encoding: expected one of {", ".join(ENCODINGS)}, got '
-                         f'{msg.encoding!r}')
-    if expected_encoding is not None and msg.encoding != expected_encoding:
-        raise ValueError(f'image encoding: expected {expected_encoding}, got {msg.encoding}')
-    dtype, size = ENCODINGS[msg.encoding]
-    if msg.is_bigendian:
-        dtype = dtype.newbyteorder('>')
-    if msg.step != size * msg.width:
-        raise ValueError(f'image step: expected {size * msg.width} for width {msg.width}, '
-                         f'got {msg.step}')
-    if len(msg.data) != msg.step * msg.height:
-        raise ValueError(f'image data: expected {msg.step * msg.height} bytes, got '
-                         f'{len(msg.data)}')
-    return np.frombuffer(bytes(msg.data), dtype=dtype).reshape(msg.height, msg.width)
+    """
+    Read a sensor_msgs/Image into a 2-D array; ValueError naming the bad field.
+
+    ``expected_encoding='mono16'`` asks for raw counts and also takes 16UC1; padded rows and
+    ``is_bigendian`` are read (``image_io.image_from_buffer``).
+    """
+    return image_io.image_from_buffer(msg.data, msg.encoding, msg.width, msg.height, msg.step,
+                                      msg.is_bigendian, expected_encoding)
 
 
 def camera_info_from_calibration(calibration, header):

@@ -45,12 +45,14 @@ from stereo_msgs.msg import DisparityImage
 
 def data_mask(msg, image):
     """
-    Pixels with data: in a mono16 rectified image 0 means none (image_proc, the rectifier).
+    Pixels with data: in a rectified image of counts (mono16, 16UC1) 0 means none.
+
+    image_proc and the rectifier fill what lies outside the raw image with 0.
 
     Raw 14-bit Lepton counts are never 0 (about 8000 at room temperature); in mono8 (AGC,
     stretched) 0 is a real value, and float images carry no such marker: all pixels count.
     """
-    return image != 0 if msg.encoding == 'mono16' else None
+    return image != 0 if msg.encoding in conversions.COUNT_ENCODINGS else None
 
 
 STAMP_LATENCY_PLAUSIBLE_S = 5.0     # a stamp older than this is not on the node's clock

@@ -232,7 +232,7 @@ class PeopleNode(Node):
         if right_msg is None or image is None:
             return None
         try:
-            right = conversions.msg_to_image(right_msg)
+            right = conversions.msg_to_image(right_msg, 'mono16')
             if right.shape != image.shape:
                 raise ValueError(f'{right.shape[1]}x{right.shape[0]}, left/image_rect is '
                                  f'{image.shape[1]}x{image.shape[0]}')
@@ -271,9 +271,10 @@ class PeopleNode(Node):
                                  f'TF is applied)')
             image = None
             if image_msg is not None:
-                if image_msg.encoding != 'mono16':
+                if image_msg.encoding not in conversions.COUNT_ENCODINGS:
                     raise ValueError(f'left/image_rect: encoding {image_msg.encoding}, '
-                                     f'expected mono16 (raw counts: warm_margin_counts)')
+                                     f'expected mono16 or 16UC1 (raw counts: '
+                                     f'warm_margin_counts)')
                 image = conversions.msg_to_image(image_msg)
                 if not image.size:
                     raise ValueError('left/image_rect: empty image (0 pixels)')

@@ -22,7 +22,7 @@ from st_stereo.core.calibration.stereo import calibrate_stereo, coverage, OUTLIE
 from st_stereo.core.calibration.targets import (CalibrationInputError, CalibrationTarget,
                                                 find_target, REJECTIONS, stereo_numbering,
                                                 to_u8)
-from st_stereo.core.image_io import read_thermal_image
+from st_stereo.core.image_io import COUNT_ENCODINGS, image_from_buffer, read_thermal_image
 from st_stereo.core.rectification import StereoRectifier
 
 IMAGE_SUFFIXES = ('.png', '.tif', '.tiff', '.pgm')
@@ -57,12 +57,16 @@ def bag_frames(path):
     frames = {'left': {}, 'right': {}}
     try:
         for side, stamp, msg in raw_image_messages(path):
-            if msg.encoding not in ('mono16', 'mono8'):
+            if msg.encoding not in COUNT_ENCODINGS + ('mono8',):
                 raise CalibrationInputError(f'{path}: {side}/image_raw: encoding '
-                                            f'{msg.encoding!r}, expected mono16 or mono8')
-            dtype = '<u2' if msg.encoding == 'mono16' else 'u1'
-            pixels = np.frombuffer(msg.data.tobytes(), dtype).reshape(msg.height, -1)
-            frames[side][stamp] = pixels[:, :msg.width].copy()
+                                            f'{msg.encoding!r}, expected mono16, 16UC1 or '
+                                            f'mono8')
+            try:
+                pixels = image_from_buffer(msg.data, msg.encoding, msg.width, msg.height,
+                                           msg.step, msg.is_bigendian)
+            except ValueError as error:
+                raise CalibrationInputError(f'{path}: {side}/image_raw: {error}') from None
+            frames[side][stamp] = pixels.copy()
     except FileNotFoundError as error:
         raise CalibrationInputError(str(error)) from None
     return frames
