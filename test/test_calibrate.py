@@ -277,3 +277,29 @@ def test_sim_calibration_writes_a_bag_that_calibrate_reads(tmp_path, capsys):
     # A second run refuses to overwrite the bag unless told to.
     assert main(['sim', 'calibration', '--pairs', '3', '--bag', '--out', str(out)]) == 2
     assert 'exists' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('storage', ['sqlite3', 'mcap'])
+def test_a_bag_of_16uc1_padded_big_endian_counts_is_read_as_its_counts(tmp_path, storage):
+    # libuvc_camera writes a PureThermal board's Y16 as 16UC1; sensor_msgs/Image allows padded
+    # rows and big-endian data. The tool refused 16UC1 and ignored is_bigendian.
+    from builtin_interfaces.msg import Time
+    from rosbag2_layouts import Topic, write_bag
+    from st_stereo.tools.calibrate import pairs_from_bag
+    from std_msgs.msg import Header
+    counts = {side: np.arange(4800, dtype=np.uint16).reshape(60, 80) + offset
+              for side, offset in (('left', 7000), ('right', 7100))}
+
+    def image(side, sec):
+        rows = counts[side].astype('>u2').view(np.uint8)
+        rows = np.concatenate([rows, np.zeros((60, 4), np.uint8)], axis=1)
+        return Image(header=Header(stamp=Time(sec=sec), frame_id=side), height=60, width=80,
+                     encoding='16UC1', is_bigendian=1, step=164, data=rows.tobytes())
+    bag = tmp_path / 'uvc'
+    write_bag(bag, 9, storage, [Topic(f'/stereo/{side}/image_raw', 'sensor_msgs/msg/Image',
+                                      [image(side, sec) for sec in (1, 2)])
+                                for side in ('left', 'right')])
+    pairs = list(pairs_from_bag(bag))
+    assert len(pairs) == 2
+    for _, left, right in pairs:
+        assert np.array_equal(left, counts['left']) and np.array_equal(right, counts['right'])

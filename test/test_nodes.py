@@ -12,8 +12,8 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from scipy import ndimage
 from ros_helpers import GatedMatch, ideal_camera_info, keep_statuses, spin_until
+from scipy import ndimage
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.calibration.files import CalibrationError
 from st_stereo.nodes.conversions import image_to_msg, point_cloud_array
@@ -186,7 +186,7 @@ def test_wrong_encoding_is_dropped_and_counted(ros):
 
 
 def _image_as(pixels, header, encoding, pad_bytes=0, big_endian=False):
-    """An Image of counts as another driver would write it: encoding, row padding, order."""
+    """Return an Image of counts as another driver writes it: encoding, padding, order."""
     msg = Image(header=header, height=pixels.shape[0], width=pixels.shape[1],
                 encoding=encoding, is_bigendian=int(big_endian))
     rows = pixels.astype('>u2' if big_endian else '<u2').view(np.uint8)
