@@ -166,3 +166,56 @@ def test_mutated_calibration_files_fail_only_with_calibration_errors(tmp_path):
         except CalibrationError as error:
             assert str(error).startswith(str(target))
     check()
+
+
+# What ROS's C++ reader (camera_calibration_parsers, yaml-cpp) reads and PyYAML alone did not:
+# a file from before distortion_model existed, yaml-cpp's flow style with integer zeros, and
+# a coefficient without a decimal point (yaml-cpp 0.5's six significant digits: 1e-05), which
+# YAML 1.1 leaves a string. The layout is the one that parser wrote (its emitter's key order).
+YAML_CPP_OUTPUT = """image_width: 80
+image_height: 60
+camera_name: lepton_left
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [83.61, 0, 39.71, 0, 83.58, 29.65, 0, 0, 1]
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.1234, 0.0312, 1e-05, -2e-05, 0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [83.61, 0, 39.71, 0, 0, 83.58, 29.65, 0, 0, 0, 1, 0]
+"""
+
+
+def test_reads_what_camera_calibration_parsers_wrote_before_distortion_model(tmp_path):
+    path = tmp_path / 'left.yaml'
+    path.write_text(YAML_CPP_OUTPUT)
+    assert isinstance(yaml.safe_load(YAML_CPP_OUTPUT)['distortion_coefficients']['data'][2],
+                      str)                          # what PyYAML alone makes of 1e-05
+    loaded = load_calibration(path)
+    assert loaded.distortion_model == 'plumb_bob'
+    np.testing.assert_array_equal(loaded.distortion, [-0.1234, 0.0312, 1e-05, -2e-05, 0.0])
+    assert loaded.notes == (f'{path}: no distortion_model, plumb_bob assumed (as '
+                            f'camera_calibration_parsers reads such a file)',)
+    assert loaded.camera_matrix[1, 2] == 29.65
+    # Written back, the model is explicit and nothing is assumed any more.
+    save_calibration(loaded, tmp_path / 'again.yaml')
+    again = load_calibration(tmp_path / 'again.yaml')
+    assert again.notes == () and again.distortion_model == 'plumb_bob'
+
+
+@pytest.mark.parametrize('value, message', [
+    ("'abc'", 'data must be numbers'), ('true', 'data must be numbers'),
+    ("'nan'", 'non-finite'), ('[1]', 'data must be numbers')])
+def test_a_string_that_is_not_a_number_is_still_refused(tmp_path, value, message):
+    path = tmp_path / 'left.yaml'
+    path.write_text(YAML_CPP_OUTPUT.replace('data: [-0.1234,', f'data: [{value},'))
+    with pytest.raises(CalibrationError, match=message):
+        load_calibration(path)

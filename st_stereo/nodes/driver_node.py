@@ -159,6 +159,8 @@ class DriverNode(Node):
     def _load_calibration(self, url):
         path = resolve_url(url)
         calibration = load_calibration(path)      # CalibrationError names file and field
+        for note in calibration.notes:
+            self.get_logger().warning(note)
         if (calibration.width, calibration.height) != (80, 60):
             raise ValueError(f'{path}: image size {calibration.width}x{calibration.height}, '
                              f'the Lepton 2 is 80x60')

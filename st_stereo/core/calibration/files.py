@@ -5,6 +5,12 @@ The format is the one ROS ``camera_calibration`` writes and ``camera_info_manage
 image_width, image_height, camera_name, camera_matrix, distortion_model,
 distortion_coefficients, rectification_matrix, projection_matrix, each matrix as
 ``{rows, cols, data}`` in row-major order. Errors name the file and the field.
+
+Read as ROS's own reader (camera_calibration_parsers, yaml-cpp) reads them: a file without
+``distortion_model`` (what that parser wrote before the field existed) is plumb_bob, said in
+``CameraCalibration.notes``; a number PyYAML's YAML 1.1 rules leave a string, such as
+``1e-05`` (no decimal point, as yaml-cpp of the Melodic era wrote a small coefficient) or a
+quoted one, is read as the number it spells.
 """
 
 import dataclasses
@@ -34,11 +40,26 @@ class CameraCalibration:
     distortion: np.ndarray             # D, (n,)
     rectification: np.ndarray          # R, 3x3
     projection: np.ndarray             # P, 3x4
+    # What the reader assumed (a missing distortion_model), for the loader's user to log.
+    notes: tuple = dataclasses.field(default=(), compare=False)
 
     @property
     def is_calibrated(self):
         """K[0, 0] != 0 (an all-zero K means uncalibrated in ROS)."""
         return bool(self.camera_matrix[0, 0] != 0)
+
+
+def _number(value):
+    """
+    Return a YAML scalar as a float, as yaml-cpp's ``as<double>`` reads it.
+
+    PyYAML's YAML 1.1 float needs a decimal point: ``1e-05`` (yaml-cpp of the Melodic era
+    wrote small coefficients so) and quoted numbers arrive as strings. Booleans and anything
+    else raise TypeError / ValueError.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise TypeError(f'not a number: {value!r}')
+    return float(value)
 
 
 def _matrix(document, field, shape, source):
@@ -60,11 +81,8 @@ def _matrix(document, field, shape, source):
         length = len(data) if isinstance(data, list) else type(data).__name__
         raise CalibrationError(f'{source}: {field}.data must hold rows*cols = {rows * cols} '
                                f'numbers, got {length}')
-    if not all(isinstance(value, (int, float)) and not isinstance(value, bool)
-               for value in data):
-        raise CalibrationError(f'{source}: {field}.data must be numbers, got {data!r}')
     try:
-        values = np.array(data, dtype=np.float64)
+        values = np.array([_number(value) for value in data], dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
         raise CalibrationError(f'{source}: {field}.data must be numbers, got {data!r}') from None
     if not np.isfinite(values).all():
@@ -82,7 +100,13 @@ def parse_calibration(document, source='<calibration>'):
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
             raise CalibrationError(f'{source}: {field} must be a positive integer, got '
                                    f'{value!r}')
+    notes = ()
     model = document.get('distortion_model')
+    if 'distortion_model' not in document:
+        # camera_calibration_parsers: "did not specify distortion model, assuming plumb bob".
+        model = 'plumb_bob'
+        notes = (f'{source}: no distortion_model, plumb_bob assumed (as '
+                 f'camera_calibration_parsers reads such a file)',)
     if not isinstance(model, str) or model not in DISTORTION_MODELS:
         raise CalibrationError(f'{source}: distortion_model must be one of '
                                f'{", ".join(DISTORTION_MODELS)}, got {model!r}')
@@ -101,7 +125,7 @@ def parse_calibration(document, source='<calibration>'):
                              camera_matrix=matrices['camera_matrix'], distortion_model=model,
                              distortion=distortion,
                              rectification=matrices['rectification_matrix'],
-                             projection=matrices['projection_matrix'])
+                             projection=matrices['projection_matrix'], notes=notes)
 
 
 def calibration_from_camera_info(msg, camera_name='', source=None):
