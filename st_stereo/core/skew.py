@@ -52,13 +52,6 @@ from st_stereo.core.triangulation import triangulate
 
 
 NOISE_PERCENTILE = 5.0      # of the frame difference's local spread: the noise level
-# The noise level is at most this many times the current frame's own noise (Immerkaer's
-# estimate): a frame difference with no still part (a view that moves as a whole) has no
-# noise-only windows for its percentile. On the ten simulated sequences and the recording the
-# percentile's level is 0.56-0.82 times the single-frame estimate (every pair of 40, left
-# camera); a whole view moving 3.4 px a frame made it 47 times, and two thirds of its moving
-# windows counted as unchanged: not tracked, not corrected.
-WHOLE_VIEW_NOISE_FACTOR = 3.0
 # A POC velocity farther than this many pixels per period from the NCC track's is refused.
 POC_MAX_DISAGREEMENT_PX = 1.0
 
@@ -194,31 +187,6 @@ def window_ncc(current, previous, y, x, half, offsets_y, offsets_x, kernels='aut
     return np.nan_to_num(ncc, nan=-1.0)        # a flat window correlates with nothing
 
 
-def single_frame_noise(image):
-    """
-    Return the standard deviation of an image's noise from the image alone (Immerkaer 1996).
-
-    ``sigma = sqrt(pi / 2) / (6 (W - 2) (H - 2)) sum |I * N|`` with the mask ``N`` = [[1, -2,
-    1], [-2, 4, -2], [1, -2, 1]] (the difference of two Laplacians: blind to a plane and to
-    any straight ridge along the rows or columns). Texture adds to it, so it bounds the noise
-    from above on a textured frame; 0 for an image under 3 x 3 pixels.
-
-    References
-    ----------
-    J. Immerkaer, "Fast noise variance estimation", Computer Vision and Image Understanding
-    64(2), 1996.
-
-    """
-    image = np.asarray(image, dtype=np.float64)
-    rows, cols = image.shape
-    if rows < 3 or cols < 3:
-        return 0.0
-    response = (image[:-2, :-2] - 2 * image[:-2, 1:-1] + image[:-2, 2:]
-                - 2 * image[1:-1, :-2] + 4 * image[1:-1, 1:-1] - 2 * image[1:-1, 2:]
-                + image[2:, :-2] - 2 * image[2:, 1:-1] + image[2:, 2:])
-    return float(np.sqrt(np.pi / 2) * np.abs(response).sum() / (6 * (rows - 2) * (cols - 2)))
-
-
 def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
     """
     Whether each feature's window changed between two frames of one camera beyond the noise.
@@ -231,8 +199,6 @@ def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
     data are filled (``matcher.fill_invalid``): windows that straddle a border of 0 have a
     lower spread than the noise, and pull the level down (a review: with a 3-px border the
     level fell from 2.4 to 1.3 counts and 70 % of a static scene's windows "changed").
-    The level is at most ``WHOLE_VIEW_NOISE_FACTOR`` times the current frame's own noise
-    (``single_frame_noise``): when the whole view moves no window holds noise alone.
     """
     previous = np.asarray(previous, dtype=np.float64)
     current = np.asarray(current, dtype=np.float64)
@@ -247,8 +213,8 @@ def changed_windows(previous, current, x, y, window=9, change_noise=2.0):
     # all: left in, a border of 5 % or more would make the noise level zero and every window
     # with real noise 'changed'.
     with_data = spread_map[spread_map > 0]
-    noise = float(np.percentile(with_data, NOISE_PERCENTILE)) if with_data.size else 0.0
-    noise = max(min(noise, WHOLE_VIEW_NOISE_FACTOR * single_frame_noise(current)), 1e-9)
+    noise = max(float(np.percentile(with_data, NOISE_PERCENTILE)), 1e-9) \
+        if with_data.size else 1e-9
     rows, cols = current.shape
     inside = (x >= 0) & (x < cols) & (y >= 0) & (y < rows)
     changed = np.zeros(len(x), dtype=bool)
