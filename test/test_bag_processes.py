@@ -9,6 +9,7 @@ stamps, the right one starting a second later, 16UC1 as libuvc_camera writes a P
 board's Y16) and the scene moves, so a pair's skew shows in its disparity unless corrected.
 """
 
+import ctypes
 import os
 import signal
 import subprocess
@@ -115,6 +116,15 @@ class Listener(Node):
         self.create_subscription(DiagnosticArray, '/stereo/pair_info', self._pair_info,
                                  reliable)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._diagnostics, 50)
+        # A second subscriber of the raw images (the rectifier is the first): with the
+        # matcher the second of camera_info, the driver waits for all three (replay_wait).
+        self.raw_images = {'left': 0, 'right': 0}
+        for side in self.raw_images:
+            self.create_subscription(Image, f'/stereo/{side}/image_raw',
+                                     lambda msg, side=side: self._count(side), reliable)
+
+    def _count(self, side):
+        self.raw_images[side] += 1
 
     def _diagnostics(self, msg):
         keep_statuses(self.statuses, msg)
@@ -132,12 +142,19 @@ class Listener(Node):
                    message.startswith('finished') for name, message in self.messages.items())
 
 
+def _interrupt_when_the_test_dies():
+    # Linux prctl(PR_SET_PDEATHSIG, SIGINT): a pytest killed by SIGTERM (a CI timeout) left
+    # the three node processes running, the driver never exiting (it stays up after its
+    # bag), and on the same ROS_DOMAIN_ID they would have taken the next run's messages.
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT)
+
+
 def _node_process(module, *parameters):
     command = [sys.executable, '-c',
                f'import sys; from st_stereo.nodes.{module} import main; sys.exit(main())',
                '--ros-args'] + [arg for p in parameters for arg in ('-p', p)]
     return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=_interrupt_when_the_test_dies)
 
 
 def _stop(processes):
@@ -174,7 +191,8 @@ def test_two_free_running_cameras_recorded_apart_replay_through_the_processes(tm
                 return 'rectifier' in names and 'matcher' in names
             spin_until(executor, downstream_up, 60.0)
             assert downstream_up(), 'the rectifier and matcher did not start'
-            processes.append(_node_process('driver_node', 'source:=bag', f'bag:={bag}'))
+            processes.append(_node_process('driver_node', 'source:=bag', f'bag:={bag}',
+                                           'replay_subscribers:=2'))
             spin_until(executor, listener.driver_finished, 90.0)
             assert listener.driver_finished(), listener.messages
             spin_until(executor, lambda: len(listener.clouds) >= len(pairs), 5.0)
@@ -184,11 +202,20 @@ def test_two_free_running_cameras_recorded_apart_replay_through_the_processes(tm
     errors = [process.stderr.read() for process in processes]
     assert codes == [0, 0, 0], errors
     # The driver paired the two cameras as worked out from the stamps: the right camera's
-    # late start costs the left camera's first second, nothing else.
-    published = sorted(listener.pair_infos)
-    assert len(published) == len(pairs), errors[2]
-    for key, (lt, r) in zip(published, pairs):
-        values = listener.pair_infos[key]
+    # late start costs the left camera's first second, nothing else; and it waited for its
+    # consumers (a new process's publishers are discovered within a second or so; the first
+    # pair went out 1.05 s after the start and was lost to them before replay_wait).
+    finished = next(message for name, message in listener.messages.items()
+                    if name.endswith('lepton_driver: stereo pairs'))
+    assert finished == f'finished: {len(pairs)} pairs published'
+    assert listener.raw_images == {'left': len(pairs), 'right': len(pairs)}
+    expected = {}
+    for lt, r in pairs:
+        midpoint = (int(round(lt * 1e9)) + int(round(r * 1e9))) // 2
+        expected[divmod(midpoint, 1_000_000_000)] = (lt, r)
+    assert set(listener.pair_infos) == set(expected)
+    for key, values in listener.pair_infos.items():
+        lt, r = expected[key]                       # the pair's stamp: the midpoint, exact
         assert float(values['left acquisition stamp']) == pytest.approx(lt, abs=1e-6)
         assert float(values['right acquisition stamp']) == pytest.approx(r, abs=1e-6)
         assert float(values['skew (ms)']) == pytest.approx(1e3 * (r - lt), abs=1e-3)
@@ -196,8 +223,10 @@ def test_two_free_running_cameras_recorded_apart_replay_through_the_processes(tm
     # between the two cameras' instants (the first pair has no previous pair to measure the
     # motion on: published uncorrected, counted).
     matcher = next(s for n, s in listener.statuses.items() if n.endswith('matcher: ST matching'))
+    assert int(matcher['pairs pairs']) == len(pairs)
     assert len(listener.clouds) + int(matcher['pairs dropped_stale']) == len(pairs)
     assert len(listener.clouds) >= len(pairs) - 2
+    assert set(listener.clouds) <= set(expected)
     assert int(matcher['skew pairs_without_previous']) == 1
     room, body = (FOCAL_BASELINE / d for d in (ROOM_DISPARITY, BODY_DISPARITY))
     uncorrected = FOCAL_BASELINE / (BODY_DISPARITY - SPEED * min(skews))

@@ -18,6 +18,7 @@ from rosbags.typesys import get_typestore, Stores
 from st_stereo.core.calibration.files import load_calibration
 from st_stereo.core.fourier import fourier_shift_image_x
 from st_stereo.core.triangulation import StereoModel
+from st_stereo.lepton.reader import EndOfStream
 from st_stereo.nodes.bags import BagPlayer, BagRecorder
 from st_stereo.nodes.conversions import camera_info_from_calibration, image_to_msg, POINT_FIELDS
 from st_stereo.nodes.driver_node import DriverNode
@@ -402,9 +403,37 @@ def test_old_type_names_and_a_camera_recorded_later_replay_on_one_time_line(tmp_
     bag = tmp_path / 'old'
     write_bag(bag, 4, 'sqlite3', _raw_topics(left_stamps, right_stamps, 'sensor_msgs/Image'))
     left, right = open_bag_sides(bag)
-    assert len(left.messages) == 20 and len(right.messages) == 12
     assert left.next_time() == 0.0
     assert right.next_time() == pytest.approx(1.0136, abs=1e-6)   # waits for its second
+    frames = [[], []]
+    for index, side in enumerate((left, right)):
+        while side.next_time() < float('inf'):
+            frames[index].append(side.read_frame())
+    assert [len(f) for f in frames] == [20, 12]
+    assert [f.index for f in frames[1]] == list(range(12))
+    with pytest.raises(EndOfStream):
+        right.read_frame()
+    left.close()
+
+
+def test_a_bag_is_read_as_its_frames_are_needed_not_whole(tmp_path):
+    # The bag source read every message of the bag before the first frame (about 160 MB per
+    # 15 minutes of two cameras): memory and start-up grew with the recording.
+    from rosbag2_layouts import write_bag
+    from st_stereo.nodes.bag_source import open_bag_sides
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i for i in range(300)]
+    bag = tmp_path / 'long'
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, [t + 0.03 for t in stamps]))
+    left, right = open_bag_sides(bag)
+    stream = left.stream
+    assert stream is right.stream and stream.pulled <= 3
+    for _ in range(5):                  # the driver reads the camera that is behind
+        for side in sorted((left, right), key=lambda s: s.next_time()):
+            side.read_frame()
+    assert stream.pulled <= 14                                   # of 600
+    assert max(len(pending) for pending in stream.pending.values()) <= 2
+    left.close()
 
 
 def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finished(tmp_path):

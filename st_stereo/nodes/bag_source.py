@@ -1,12 +1,54 @@
-"""The driver's ``bag`` source: the raw image topics of a rosbag2 as two frame streams."""
+"""
+The driver's ``bag`` source: the raw image topics of a rosbag2 as two frame streams.
+
+The bag is read as the frames are needed, not whole before the first one: a camera's next
+frame is pulled from the bag in its order (the other camera's frames met on the way are
+kept for it), so memory holds the few frames between the two cameras' positions in the
+bag, not the recording (an hour of two 80x60 cameras is 600 MB of images).
+"""
 
 import bisect
+import collections
 
-from st_stereo.bag_streams import raw_image_messages, recorded_pair_info
+from st_stereo.bag_streams import raw_image_messages, recorded_pair_info, SIDES
 from st_stereo.lepton.assembler import LeptonCounters
 from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.lepton.reader import EndOfStream, LeptonFrame
 from st_stereo.nodes.conversions import msg_to_image
+
+
+class BagImageStream:
+    """Both cameras' raw images of a bag, pulled in bag order as each camera asks for one."""
+
+    def __init__(self, path):
+        self._messages = raw_image_messages(path)
+        self.pending = {side: collections.deque() for side in SIDES}
+        self.pulled = 0                    # messages read from the bag so far
+        self.ended = False
+
+    def peek(self, side):
+        """Return the side's next ``(stamp ns, Image)`` without taking it; None at the end."""
+        pending = self.pending[side]
+        while not pending and not self.ended:
+            try:
+                other, stamp_ns, msg = next(self._messages)
+            except StopIteration:
+                self.ended = True
+                break
+            self.pulled += 1
+            self.pending[other].append((stamp_ns, msg))
+        return pending[0] if pending else None
+
+    def take(self, side):
+        """Return and remove the side's next ``(stamp ns, Image)``; None at the end."""
+        item = self.peek(side)
+        if item is not None:
+            self.pending[side].popleft()
+        return item
+
+    def close(self):
+        """Close the bag (also when the stream was not read to its end)."""
+        self._messages.close()
 
 
 class _BagTime:
@@ -21,50 +63,57 @@ class _BagTime:
 class BagSide:
     """One camera's frames of a bag, with the reader's interface."""
 
-    def __init__(self, topic, messages, start=None):
-        self.topic = topic
-        self.messages = messages           # [(stamp ns, Image)], in bag order
-        self.position = 0
+    def __init__(self, side, stream, start):
+        self.side = side
+        self.topic = f'{side}/image_raw'
+        self.stream = stream
+        self.read = 0                      # messages of this camera taken so far
         self.counters = LeptonCounters()
         self.transport = _BagTime(self)
         # Both sides' times count from one start (the earlier side's first stamp): a camera
         # recorded a second later must wait that second, not start with the other one.
-        self.start = start if start is not None else \
-            (messages[0][0] * 1e-9 if messages else 0.0)
+        self.start = start
         self.last_problem = ''             # why the last refused frame was refused
 
     def next_time(self):
         """Time of the next frame relative to the first (for pacing and interleaving)."""
-        if self.position >= len(self.messages):
-            return float('inf')
-        return self.messages[self.position][0] * 1e-9 - self.start
+        item = self.stream.peek(self.side)
+        return float('inf') if item is None else item[0] * 1e-9 - self.start
 
     def read_frame(self, timeout_s=1.0):
         """Return the next frame; EndOfStream after the last."""
-        if self.position >= len(self.messages):
+        item = self.stream.take(self.side)
+        if item is None:
             raise EndOfStream()
-        stamp_ns, msg = self.messages[self.position]
-        self.position += 1
+        stamp_ns, msg = item
+        index = self.read
+        self.read += 1
         self.counters.frames_completed += 1
         try:
             pixels = msg_to_image(msg, 'mono16')
         except ValueError as error:
             self.counters.frames_aborted += 1
-            self.last_problem = f'{self.topic} message {self.position - 1}: {error}'
+            self.last_problem = f'{self.topic} message {index}: {error}'
             return None
         self.counters.unique_frames += 1
-        return LeptonFrame(pixels.copy(), stamp_ns * 1e-9, self.position - 1,
-                           stamp_ns=stamp_ns)
+        return LeptonFrame(pixels.copy(), stamp_ns * 1e-9, index, stamp_ns=stamp_ns)
+
+    def close(self):
+        """Close the bag the two sides share."""
+        self.stream.close()
 
 
 def open_bag_sides(path):
-    """Open the left and right image_raw streams of a bag (topics ending in side/image_raw)."""
-    streams = {'left': [], 'right': []}
-    for side, stamp_ns, msg in raw_image_messages(path):
-        streams[side].append((stamp_ns, msg))
-    firsts = [streams[side][0][0] * 1e-9 for side in ('left', 'right') if streams[side]]
+    """
+    Open the left and right image_raw streams of a bag (topics ending in side/image_raw).
+
+    Only the first frame of each camera is read here (for the common start): the rest is
+    read as the driver asks for it.
+    """
+    stream = BagImageStream(path)
+    firsts = [item[0] * 1e-9 for item in (stream.peek(side) for side in SIDES) if item]
     start = min(firsts) if firsts else 0.0
-    return [BagSide(f'{side}/image_raw', streams[side], start) for side in ('left', 'right')]
+    return [BagSide(side, stream, start) for side in SIDES]
 
 
 class RecordedPairInfo:

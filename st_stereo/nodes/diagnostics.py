@@ -23,6 +23,14 @@ def positive_number(name, value, unit):
     return float(value)
 
 
+def non_negative_number(name, value, unit='seconds'):
+    """Return a parameter's value as a float; ValueError naming it unless finite and >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not (math.isfinite(value) and value >= 0):
+        raise ValueError(f'{name}: expected a finite number of {unit} >= 0, got {value!r}')
+    return float(value)
+
+
 def target_frequency(value):
     """Return a ``target_frequency`` parameter as a float (``positive_number``, Hz)."""
     return positive_number('target_frequency', value, 'Hz')

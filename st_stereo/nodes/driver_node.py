@@ -55,6 +55,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 LIVE_SOURCES = ('spi', 'purethermal')
+RECORDED_SOURCES = ('bag', 'capture')      # replay_wait holds them for their consumers
+REPLAY_SETTLE_S = 0.3       # after this side sees its subscribers, for theirs to see it
 
 
 class DriverNode(Node):
@@ -74,6 +76,12 @@ class DriverNode(Node):
                 self.duration >= 0):
             raise ValueError(f'duration: expected seconds >= 0 (0: until the source ends), got '
                              f'{self.duration!r}')
+        self.replay_wait = diagnostics.non_negative_number('replay_wait', value('replay_wait'))
+        self.replay_subscribers = value('replay_subscribers')
+        if isinstance(self.replay_subscribers, bool) or \
+                not isinstance(self.replay_subscribers, int) or self.replay_subscribers < 1:
+            raise ValueError(f'replay_subscribers: expected an integer >= 1, got '
+                             f'{self.replay_subscribers!r}')
         self.sim_depth = value('sim_depth')
         self.sim_texture = value('sim_texture')
         captures = [value(f'{side}_capture') for side in SIDES]
@@ -112,6 +120,7 @@ class DriverNode(Node):
         self._lost_reported = [0, 0]
         self.ffc_pairs = 0
         self.recorded_pair_info = None     # source bag: what the bag's pair_info topic says
+        self.replay_started_without = []   # bag, capture: topics short of subscribers at start
         self.published = 0
         self.last_telemetry = [None, None]
         self.finished = threading.Event()
@@ -317,7 +326,39 @@ class DriverNode(Node):
         self.finished.set()
 
     # --- recorded and simulated sources: one thread on their own clocks ----------------------
+    def _wait_for_subscribers(self):
+        """
+        Hold a recorded source until its consumers are there (``replay_wait``).
+
+        A node started beside the driver (launch, another terminal) discovers its publishers
+        within a second or so, and a reliable topic's messages published before that are
+        lost to it, uncounted: a replay would lose its first pairs. Live cameras cannot wait.
+        """
+        if self.source not in RECORDED_SOURCES or not self.replay_wait:
+            return
+        publishers = self.image_pubs + self.info_pubs
+        deadline = time.monotonic() + self.replay_wait
+        while not self._stop.is_set():
+            missing = [pub.topic_name for pub in publishers
+                       if pub.get_subscription_count() < self.replay_subscribers]
+            if not missing:
+                # The subscriber's side matches this publisher moments after this side does.
+                self._stop.wait(REPLAY_SETTLE_S)
+                self.get_logger().info(f'{self.source}: replay starts: every image_raw and '
+                                       f'camera_info topic has {self.replay_subscribers} '
+                                       f'subscriber(s)')
+                return
+            if time.monotonic() >= deadline:
+                self.replay_started_without = missing
+                self.get_logger().warning(
+                    f'{self.source}: replay starts after {self.replay_wait:g} s (replay_wait) '
+                    f'with fewer than {self.replay_subscribers} subscriber(s) on '
+                    f'{", ".join(missing)}')
+                return
+            self._stop.wait(0.02)
+
     def _run(self):
+        self._wait_for_subscribers()
         clock_start = self.get_clock().now().nanoseconds * 1e-9
         wall_start = time.monotonic()
         simulated = self.source in ('sim', 'bag')     # paced at real time
@@ -509,6 +550,9 @@ class DriverNode(Node):
             sum(self.inexact_drops)
         if self.live:
             values['frames dropped (handover queue full)'] = sum(self.queue_drops)
+        if self.source in RECORDED_SOURCES:
+            values['replay started short of subscribers on'] = \
+                ', '.join(self.replay_started_without) or 'none'
         if self.recorded_pair_info is not None:
             values.update(self.recorded_pair_info.counts)
             if self.recorded_pair_info.last_problem:

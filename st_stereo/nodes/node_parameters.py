@@ -31,6 +31,13 @@ DRIVER_PARAMETERS = [
     NodeParameter('bag_camera_info', True, "bag: publish the bag's own calibration (its first "
                   'left/camera_info and right/camera_info) when it has one, else the '
                   "camera_info_url's (logged); false: always the camera_info_url's"),
+    NodeParameter('replay_wait', 5.0, 'bag, capture: before replaying, wait up to this many '
+                  'seconds until each of left/right image_raw and camera_info has '
+                  'replay_subscribers subscribers (a consumer started beside the driver is '
+                  'discovered within a second or so, and what is published before is lost); '
+                  'then start anyway, logging the topics still without; 0: start at once'),
+    NodeParameter('replay_subscribers', 1, 'bag, capture: subscribers each of left/right '
+                  'image_raw and camera_info must have before the replay starts (replay_wait)'),
     NodeParameter('telemetry', 'off', 'camera telemetry rows: off, header or footer (a capture '
                   'says its own, or it is detected from its data)'),
     NodeParameter('max_pair_delta', 0.06, 'largest difference of the two acquisition times of '
