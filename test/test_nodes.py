@@ -757,3 +757,24 @@ def test_pairs_the_exact_stamp_sync_drops_are_an_error_naming_it(ros):
     assert status.message.startswith('no pair in the last period: ')
     assert 'dropped by the exact-stamp sync of left/image_raw, right/image_raw, ' \
         'left/camera_info, right/camera_info (their stamps must be equal)' in status.message
+
+
+def test_counts_above_14_bits_are_rectified_and_said(ros):
+    # A radiometric Lepton in TLinear mode (which PureThermal firmware may restore) gives
+    # centikelvin, about 30,000 at room temperature: rectified, but the count parameters
+    # downstream assume raw counts, and nothing said so.
+    context, _, add = ros
+    rectifier = add(RectifierNode(context=context))
+    for sec, level in ((1, 29_500), (2, 8_000)):
+        for index, msg in enumerate(_counts_pair(sec, '16UC1', 0, False)):
+            if index < 2:
+                pixels = np.frombuffer(bytes(msg.data), '<u2').astype(int) - 8000 + level
+                msg.data = pixels.astype('<u2').tobytes()
+            rectifier.sync.add(index, msg)
+        status = rectifier.status()
+        if sec == 1:
+            assert status.level == DiagnosticStatus.WARN
+            assert status.message.startswith('left and right image_raw above 16383: not 14-bit '
+                                             'raw counts (a radiometric Lepton in TLinear')
+    assert rectifier.counts['rectified'] == 2 and rectifier.counts['pairs_above_14_bits'] == 1
+    assert status.level == DiagnosticStatus.OK         # the state is the latest pair's

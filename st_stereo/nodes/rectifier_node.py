@@ -27,6 +27,14 @@ from st_stereo.nodes.runtime import RELIABLE, spin_node, with_default_namespace
 from st_stereo.nodes.sync import subscribe_exact, sync_drop_message, SyncDropWatch
 
 
+# A Lepton's raw output is 14 bits. More is another output (a radiometric Lepton in TLinear,
+# which PureThermal firmware may restore, gives centikelvin, 100 a kelvin; this project's
+# count parameters, e.g. the people node's warm_margin_counts, assume raw counts).
+MAX_RAW_COUNT = 16383
+ABOVE_14_BITS = ('{} (a radiometric Lepton in TLinear mode gives centikelvin: the count '
+                 'parameters, e.g. warm_margin_counts, assume raw counts)')
+
+
 class RectifierNode(Node):
     """Thin wrapper: raw pair + infos -> StereoRectifier -> rectified pair + infos."""
 
@@ -53,7 +61,9 @@ class RectifierNode(Node):
         self.sync_watch = SyncDropWatch(self.sync)
         self.rectifier = None
         self._calibration_key = None
-        self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0}
+        self.counts = {'pairs': 0, 'rectified': 0, 'dropped_bad_input': 0,
+                       'pairs_above_14_bits': 0}
+        self.last_above_14_bits = ''
         self.last_error = ''
         self.last_drop_reason = ''
         self.create_timer(1.0, self._publish_diagnostics)
@@ -75,13 +85,20 @@ class RectifierNode(Node):
         self.counts['pairs'] += 1
         try:
             rectifier = self._rectifier_for(left_info, right_info)
-            left, right = rectifier.rectify(conversions.msg_to_image(left_msg, 'mono16'),
-                                            conversions.msg_to_image(right_msg, 'mono16'))
+            raw = [conversions.msg_to_image(msg, 'mono16') for msg in (left_msg, right_msg)]
+            left, right = rectifier.rectify(*raw)
         except ValueError as error:
             self.counts['dropped_bad_input'] += 1
             self.last_error = self.last_drop_reason = str(error)
             return
         self.last_error = ''              # the state is the latest pair's: a good one clears it
+        above = [side for side, image in zip(('left', 'right'), raw)
+                 if image.size and int(image.max()) > MAX_RAW_COUNT]
+        # Rectified and matched all the same (ST does not mind the scale); said while it lasts,
+        # because the count parameters downstream (warm_margin_counts) assume raw counts.
+        self.counts['pairs_above_14_bits'] += bool(above)
+        self.last_above_14_bits = (f'{" and ".join(above)} image_raw above {MAX_RAW_COUNT}: '
+                                   f'not 14-bit raw counts') if above else ''
         # Each rectified stream keeps its camera's header (stamp and optical frame), as
         # image_proc does; pixels without data (outside the raw image) are 0.
         headers = (left_msg.header, right_msg.header)
@@ -96,6 +113,10 @@ class RectifierNode(Node):
         self.counts['rectified'] += 1
 
     def _publish_diagnostics(self):
+        diagnostics.publish(self, self.diagnostics_pub, [self.status()])
+
+    def status(self):
+        """Return the node's DiagnosticStatus (what the 1 Hz diagnostics publish)."""
         values = dict(self.counts)
         values['pairs dropped by sync (left, right, left info, right info)'] = \
             ', '.join(map(str, self.sync.dropped))
@@ -106,12 +127,13 @@ class RectifierNode(Node):
             level, message = diagnostics.ERROR, f'dropping pairs: {self.last_error}'
         elif not self.counts['rectified']:
             level, message = diagnostics.WARN, 'no pair rectified yet'
+        elif self.last_above_14_bits:
+            level, message = diagnostics.WARN, ABOVE_14_BITS.format(self.last_above_14_bits)
         stalled = self.sync_watch.recent(self.counts['pairs'])
         if stalled and not self.last_error:
             level, message = diagnostics.ERROR, sync_drop_message(stalled, self.sync_topics)
-        status = diagnostics.status(diagnostics.status_name(self, 'rectification'), 'st_stereo',
-                                    level, message, values)
-        diagnostics.publish(self, self.diagnostics_pub, [status])
+        return diagnostics.status(diagnostics.status_name(self, 'rectification'), 'st_stereo',
+                                  level, message, values)
 
 
 def main(args=None):

@@ -115,9 +115,11 @@ def evaluate_sequence(spec, config=None, stride=2, textures=None, max_frames=Non
 def recording_pairs(recording):
     """Yield ``(stamp_ns, left, right)`` raw uint16 pairs of a recording's bag, stamp order."""
     from st_stereo.bag_streams import raw_image_messages
+    from st_stereo.core.image_io import image_from_buffer
     pending = {}
     for side, stamp, msg in raw_image_messages(pathlib.Path(recording) / 'bag'):
-        image = np.frombuffer(bytes(msg.data), dtype='<u2').reshape(msg.height, msg.width)
+        image = image_from_buffer(msg.data, msg.encoding, msg.width, msg.height, msg.step,
+                                  msg.is_bigendian, 'mono16')
         pending.setdefault(stamp, {})[side] = image
         if len(pending[stamp]) == 2:
             pair = pending.pop(stamp)

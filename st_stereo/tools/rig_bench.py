@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from st_stereo.core.image_io import image_from_buffer
 from st_stereo.lepton.emulator import CameraConfig, pixels_digest, RigEmulator
 from st_stereo.lepton.packets import UNIQUE_FRAME_PERIOD_S
 
@@ -59,8 +60,8 @@ def _subscriber_class():
 
         def _on_image(self, side, msg):
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            pixels = np.frombuffer(bytes(msg.data), dtype='<u2').reshape(msg.height,
-                                                                         msg.width)
+            pixels = image_from_buffer(msg.data, msg.encoding, msg.width, msg.height,
+                                       msg.step, msg.is_bigendian, 'mono16')
             self.got.images[side].append((stamp, pixels_digest(pixels), msg.header.frame_id))
             self.got.arrivals.append((time.monotonic(), side))
 
