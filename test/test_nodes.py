@@ -283,12 +283,15 @@ def test_image_messages_round_trip():
 def test_cloud_layout(ros):
     from st_stereo.nodes.conversions import point_cloud
     cloud = point_cloud(Header(), np.ones((3, 3)), np.ones(3), np.ones(3), np.ones(3))
-    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 28, 84)
+    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 36, 108)
     assert [f.offset for f in cloud.fields][:3] == [0, 4, 8] and cloud.is_dense
-    assert [f.name for f in cloud.fields][-1] == 'confidence'
+    assert [f.name for f in cloud.fields][-3:] == ['confidence', 'u', 'v']
+    assert np.isnan(point_cloud_array(cloud)[:, -2:]).all()        # no pixels given
     values = point_cloud_array(point_cloud(Header(), np.ones((2, 3)), np.ones(2), np.ones(2),
-                                           np.ones(2), np.array([0.25, 0.75])))
-    assert values[:, -1].tolist() == [0.25, 0.75]
+                                           np.ones(2), np.array([0.25, 0.75]),
+                                           (np.array([10.0, 11.0]), np.array([20.0, 21.0]))))
+    assert values[:, -3].tolist() == [0.25, 0.75]
+    assert values[:, -2:].tolist() == [[10.0, 20.0], [11.0, 21.0]]
 
 
 def call_service(executor, client, request, timeout_s=30.0):

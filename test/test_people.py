@@ -1843,7 +1843,8 @@ def test_the_scoring_of_a_pair_passes_the_people_hidden_in_view_to_the_tally():
     scoring.rectifier = types.SimpleNamespace(model=model,
                                               rectify=lambda a, b: (np.zeros((60, 80)), b))
     empty = types.SimpleNamespace(points=np.zeros((0, 3)), x_point=np.zeros(0),
-                                  y_point=np.zeros(0), disparity=np.zeros(0),
+                                  y_point=np.zeros(0), x_left=np.zeros(0), y=np.zeros(0),
+                                  disparity=np.zeros(0),
                                   confidence=np.zeros(0))
     scoring.matching = types.SimpleNamespace(match=lambda *args: empty)
     tracks = [_track(1, 0.0, 3.0), _track(2, 0.7, 3.1), _track(3, 1.3, 3.0)]

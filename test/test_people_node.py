@@ -454,3 +454,20 @@ def test_a_target_frequency_that_is_not_a_rate_is_refused(ros, value):
     result = node.set_parameters([Parameter('target_frequency', value=value)])[0]
     assert not result.successful and 'expected a finite number above 0' in result.reason
     assert node.frequency.target_hz == pytest.approx(8.7)
+
+
+def test_points_are_put_back_at_their_features_pixels():
+    # points2 places points at their window's structure (point_location, the default since
+    # 2026-12-07); the people stage was chosen on points at their features: each point goes
+    # back on its feature's ray at its own depth; without u, v (an older cloud) it stays.
+    from st_stereo.core.people import at_their_features
+    p = np.array([[80.0, 0.0, 40.0, 0.0], [0.0, 82.0, 30.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    at_structure = np.array([[0.10, -0.20, 3.0], [0.50, 0.10, 4.0], [0.0, 0.0, np.nan]])
+    u, v = np.array([48.0, 50.0, 41.0]), np.array([22.0, np.nan, 29.0])
+    placed, count = at_their_features(at_structure, u, v, p)
+    assert count == 1
+    np.testing.assert_allclose(placed[0], [(48 - 40) * 3.0 / 80, (22 - 30) * 3.0 / 82, 3.0])
+    np.testing.assert_array_equal(placed[1], at_structure[1])          # no pixel: as it is
+    assert np.isnan(placed[2, 2])
+    unchanged, none = at_their_features(at_structure, None, None, p)
+    assert none == 0 and np.array_equal(unchanged, at_structure, equal_nan=True)

@@ -130,12 +130,12 @@ class STConfig:
         '(st_stereo.core.temporal, docs/results.md)', low=0.0, high=10.0)
 
     point_location: str = _field(
-        'feature', "where a match's 3-D point is placed: feature (the feature's own pixel, the "
-        "window centre) or structure (the centroid of the POC window's squared Hann weight "
-        'times squared horizontal gradient, where the window found its disparity: fewer 3-D '
-        'outliers, but the people stage was tuned on feature points and loses a far person '
-        'with it, so not the default; st_stereo.core.point_location, docs/results.md); the '
-        'disparity is the same', choices=('feature', 'structure'))
+        'structure', "where a match's 3-D point is placed: structure (the centroid of the POC "
+        "window's squared Hann weight times squared horizontal gradient, where the window "
+        'found its disparity: fewer 3-D outliers; the default since 2026-12-07) or feature '
+        "(the feature's own pixel, the window centre); the disparity is the same, and points2 "
+        "carries the feature's pixel (u, v), where the people node places each point "
+        '(st_stereo.core.point_location, docs/results.md)', choices=('feature', 'structure'))
 
     depth_edge_check: bool = _field(
         True, 'reject a match on the cool side of a strong intensity edge unless a POC window '

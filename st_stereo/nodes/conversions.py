@@ -68,16 +68,20 @@ def rectified_camera_info(msg, header):
     return out
 
 
-POINT_FIELDS = ('x', 'y', 'z', 'disparity', 'similarity', 'intensity', 'confidence')
+POINT_FIELDS = ('x', 'y', 'z', 'disparity', 'similarity', 'intensity', 'confidence', 'u',
+                'v')
 
 
-def point_cloud(header, points, disparity, similarity, intensity, confidence=None):
+def point_cloud(header, points, disparity, similarity, intensity, confidence=None,
+                pixels=None):
     """
     Build a sparse sensor_msgs/PointCloud2 of the matches.
 
     Fields float32 x, y, z (offsets 0, 4, 8), disparity, similarity, intensity, confidence
-    (0..1, ``MatchResult.confidence``; NaN when not given); height 1, width N, is_dense when
-    no NaN.
+    (0..1, ``MatchResult.confidence``; NaN when not given), u, v (``pixels``: the rectified
+    left pixel where the match was measured, ``MatchResult.x_left`` and ``y``; with
+    ``point_location: structure`` x, y, z lie up to a few pixels from it; NaN when not given);
+    height 1, width N, is_dense when no NaN in x, y, z.
     """
     count = len(disparity)
     data = np.empty((count, len(POINT_FIELDS)), dtype='<f4')
@@ -87,6 +91,7 @@ def point_cloud(header, points, disparity, similarity, intensity, confidence=Non
         data[:, 4] = similarity
         data[:, 5] = intensity
         data[:, 6] = np.nan if confidence is None else confidence
+        data[:, 7:9] = np.nan if pixels is None else np.column_stack(pixels)
     msg = PointCloud2()
     msg.header = header
     msg.height = 1

@@ -351,7 +351,8 @@ class MatcherNode(Node):
             if len(result) else np.zeros(0)
         self.points_pub.publish(conversions.point_cloud(header, points, result.disparity,
                                                         result.similarity, intensity,
-                                                        result.confidence))
+                                                        result.confidence,
+                                                        (result.x_left, result.y)))
         config = matcher.config
         low, high = matcher.disparity_bounds()
         self.disparity_pub.publish(conversions.disparity_image(

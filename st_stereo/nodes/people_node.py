@@ -36,8 +36,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-from st_stereo.core.people import PeopleConfig, PeopleEstimator, project_to_pixels, \
-    world_from_rectified
+from st_stereo.core.people import at_their_features, PeopleConfig, PeopleEstimator, \
+    project_to_pixels, world_from_rectified
 from st_stereo.core.rig_pose import nearest_rotation, RigPose, RigPoseError
 from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics, people_messages
@@ -115,7 +115,8 @@ class PeopleNode(Node):
                        'right_images_without_points': 0, 'right_camera_info_rejected': 0,
                        'right_image_rejected': 0, 'pairs_without_pair_info': 0,
                        'pair_info_unreadable': 0, 'points_behind_camera': 0,
-                       'dropped_frame_mismatch': 0, 'dropped_internal_error': 0}
+                       'dropped_frame_mismatch': 0, 'dropped_internal_error': 0,
+                       'points_placed_at_their_features': 0}
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -261,7 +262,7 @@ class PeopleNode(Node):
             return
         try:
             fields = conversions.point_cloud_fields(points_msg, ('x', 'y', 'z'),
-                                                    ('disparity', 'confidence'))
+                                                    ('disparity', 'confidence', 'u', 'v'))
             info = self.camera_info
             frame, expected = points_msg.header.frame_id, info.header.frame_id
             if frame and expected and frame.lstrip('/') != expected.lstrip('/'):
@@ -289,7 +290,10 @@ class PeopleNode(Node):
             return
         self.last_error = ''
         right = self._right_image(right_msg, image)
+        p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         points = np.column_stack([fields['x'], fields['y'], fields['z']])
+        points, placed = at_their_features(points, fields['u'], fields['v'], p)
+        self.counts['points_placed_at_their_features'] += placed
         finite = np.isfinite(points).all(axis=1)
         self.counts['points_not_finite'] += int((~finite).sum())
         behind = finite & ~(points[:, 2] > 0)
@@ -306,7 +310,6 @@ class PeopleNode(Node):
             self.counts['pairs_without_right_image'] += 1
         elif self.use_right and image is not None and skew is None:
             self.counts['pairs_without_pair_info'] += 1
-        p = np.array(self.camera_info.p, dtype=np.float64).reshape(3, 4)
         x_left, y = project_to_pixels(points, p[0, 0], p[1, 1], p[0, 2], p[1, 2])
         shape = None if image is None else image.shape
         if shape is None and self.camera_info.width and self.camera_info.height:

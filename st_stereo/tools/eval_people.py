@@ -38,7 +38,8 @@ import dataclasses
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rectified
+from st_stereo.core.people import at_their_features, PeopleConfig, PeopleEstimator, \
+    world_from_rectified
 
 HIT_M = 0.5
 VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view
@@ -249,7 +250,12 @@ class PeopleScoring:
         left, right = self.rectifier.rectify(left_raw, right_raw)
         start = time.perf_counter()
         model = self.rectifier.model
-        people = self.estimator.process(t_left, result.points, result.x_point, result.y_point,
+        # At their features' pixels, whatever point_location placed them at for points2, as
+        # the node places them (at_their_features: the fields u, v).
+        projection = np.array([[model.fx, 0.0, model.cx, 0.0], [0.0, model.fy, model.cy, 0.0],
+                               [0.0, 0.0, 1.0, 0.0]])
+        points, _ = at_their_features(result.points, result.x_left, result.y, projection)
+        people = self.estimator.process(t_left, points, result.x_left, result.y,
                                         result.disparity, result.confidence, left,
                                         intrinsics=(model.fx, model.fy, model.cx, model.cy),
                                         right_image=right,

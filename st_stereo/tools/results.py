@@ -280,7 +280,8 @@ recall, precision and id switches. The people stage needs more than a handful of
 person before the points can be thinned like this.
 
 **Where the point is placed** (``point_location``, since 2026-12-06,
-``st_stereo.core.point_location``; the tables above use the default, ``feature``). A 9-pixel
+``st_stereo.core.point_location``; the tables above use the default, ``structure`` since
+2026-12-07, ``feature`` before). A 9-pixel
 POC window spans a whole person at 80x60, and a feature one to four pixels off a strong edge
 carries the edge's disparity. With ``point_location: structure`` the point is triangulated at
 the centroid of the window's squared Hann weight times squared horizontal gradient (the
@@ -322,21 +323,24 @@ features whose skew correction was too small, too large, or, for the walker turn
 image's right edge, of the wrong sign (+1.9 px
 instead of -1.6 px; issue 14).
 
-**Why it is not the default.** The people stage (docs/people.md) was tuned on points at their
-features' pixels. `st-stereo eval people --set point_location=structure` (2026-12-06, against
-the same day's default run): sit_down recall 99.0 -> 85.6 % (the person walking in from 4.6 m
-with the head above the image is published 14 pairs later: the legs under a body cut by the
-top edge are two or three pixels wide there, and the floor position moving by 1-2 cm moves
-the legs' window off the warm pixels in one of the first pairs), horizontal error medians up
-by 6-55 mm on six of the seven (walk_across 0.131 -> 0.156 m: the lateral median error 0.043
--> 0.061 m, the points on the outline shifting the median; sit_down's down, 0.074 -> 0.058
-m), open_office recall 63.2 -> 72.9 % but precision 95.5 -> 83.3 % and id switches 4 -> 5,
-crossing 2 id switches (none), meeting_room recall 62.4 -> 62.9 %, the recording 84.4 ->
-85.9 %. Moving only the points of features on the cool side of their window's structure
-(background beside a warm body) gave the same 3-D outliers on the tuning sequences (3.8 / 1.0 /
-2.3 %) and walk_across's horizontal median 0.135 m, but the same sit_down recall (85.6 %); not
-kept. A consumer of ``points2`` that does not run the people stage gets the better points
-with ``point_location: structure``.
+**Why it was not the default until 2026-12-07, and is since.** The people stage
+(docs/people.md) was tuned on points at their features' pixels. `st-stereo eval people --set
+point_location=structure` (2026-12-06, against the same day's default run): sit_down recall
+99.0 -> 85.6 % (the person walking in from 4.6 m with the head above the image is published 14
+pairs later: the legs under a body cut by the top edge are two or three pixels wide there, and
+the floor position moving by 1-2 cm moves the legs' window off the warm pixels in one of the
+first pairs), horizontal error medians up by 6-55 mm on six of the seven, open_office recall
+63.2 -> 72.9 % but precision 95.5 -> 83.3 %, crossing 2 id switches (none). Moving only the
+points of features on the cool side of their window's structure was not kept (the same
+sit_down recall). Since 2026-12-07 ``points2`` carries each match's feature pixel (fields
+``u``, ``v``) and the people node puts every point back on its feature's ray at its depth
+(``st_stereo.core.people.at_their_features``; `st-stereo eval people` does the same), so the
+people stage sees what it was tuned on and every other consumer gets the structure's points:
+`st-stereo eval people` (all ten sequences and the recording) gave every row of its table of
+record to the digit, and the main job through the node processes recall 98.2 %, precision
+100 %, MOTA 0.982, horizontal error median / p95 0.099 / 0.162 -> 0.099 / 0.158 m (the node
+now takes the exact feature pixel where it projected float32 points), while its 3-D outliers
+over all points went 2.2 -> 1.5 %. The centroids cost 1.0-2.0 ms per 80x60 pair (docs/speed.md).
 
 **Both options together** (`st-stereo eval points --stride 4 --set point_location=structure
 --set temporal_tolerance_px=0.3`, 2026-12-06): 3-D outliers over all points 3.3 / 0.4 / 1.1 %
