@@ -434,29 +434,6 @@ def warm_points(mask, x_left, y):
     return dilated[rows, cols] & inside
 
 
-def at_their_features(points, u, v, projection):
-    """
-    Return points moved onto the rays of the pixels their matches were measured at, and how many.
-
-    ``points2`` may place a point at its window's structure (``point_location: structure``),
-    up to a few pixels from its feature; this stage was chosen on points at their features
-    (the legs' windows, the silhouettes' rows). Each point keeps its depth ``z`` and gets
-    ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy`` (the triangulation's, with the rectified
-    left ``projection`` P). ``u``, ``v`` None (an older cloud without the fields) or NaN:
-    the point stays where it is.
-    """
-    points = np.array(points, dtype=np.float64).reshape(-1, 3)
-    if u is None or v is None:
-        return points, 0
-    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
-    fx, fy, cx, cy = projection[0, 0], projection[1, 1], projection[0, 2], projection[1, 2]
-    known = np.isfinite(u) & np.isfinite(v) & np.isfinite(points[:, 2])
-    z = points[known, 2]
-    points[known, 0] = (u[known] - cx) * z / fx
-    points[known, 1] = (v[known] - cy) * z / fy
-    return points, int(known.sum())
-
-
 def project_to_pixels(points, fx, fy, cx, cy):
     """Left pixel (x, y) of points (n, 3) in the rectified left frame."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)

@@ -142,6 +142,29 @@ def triangulate(model, x_left, y, disparity):
     return np.stack((x, y_out, z), axis=-1)
 
 
+def at_their_features(points, u, v, projection):
+    """
+    Return points moved onto the rays of the pixels their matches were measured at, and how many.
+
+    ``points2`` places a point at its window's structure (``point_location: structure``),
+    up to a few pixels from its feature; the people stage was chosen on points at their
+    features, and the paper's protocol scores them there. Each point keeps its depth ``z`` and gets
+    ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy`` (the triangulation's, with the rectified
+    left ``projection`` P). ``u``, ``v`` None (an older cloud without the fields) or NaN:
+    the point stays where it is.
+    """
+    points = np.array(points, dtype=np.float64).reshape(-1, 3)
+    if u is None or v is None:
+        return points, 0
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    fx, fy, cx, cy = projection[0, 0], projection[1, 1], projection[0, 2], projection[1, 2]
+    known = np.isfinite(u) & np.isfinite(v) & np.isfinite(points[:, 2])
+    z = points[known, 2]
+    points[known, 0] = (u[known] - cx) * z / fx
+    points[known, 1] = (v[known] - cy) * z / fy
+    return points, int(known.sum())
+
+
 def project(model, points):
     """Project 3-D points into the rectified pair: left (u, v) and disparity (inverse of above)."""
     points = np.asarray(points, dtype=np.float64)

@@ -1,8 +1,9 @@
 """
 ``people``: people on the floor, with ids, from the matcher's points (``st_stereo.core.people``).
 
-Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence; any
-PointCloud2 with x, y, z works), ``left/image_rect`` (the warm foreground, ``use_image``: the
+Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence, u, v: each
+point is put back on the ray of its feature's pixel u, v at its depth, ``at_their_features``;
+any PointCloud2 with x, y, z works, used as it lies, with a WARN when u, v are missing), ``left/image_rect`` (the warm foreground, ``use_image``: the
 image of the points' stamp, which the rectifier publishes before the matcher has matched it;
 a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
 skipped, the tracks coast and the messages still go out) and ``left/camera_info`` (its R turns
@@ -36,9 +37,10 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-from st_stereo.core.people import at_their_features, PeopleConfig, PeopleEstimator, \
-    project_to_pixels, world_from_rectified
+from st_stereo.core.people import PeopleConfig, PeopleEstimator, project_to_pixels, \
+    world_from_rectified
 from st_stereo.core.rig_pose import nearest_rotation, RigPose, RigPoseError
+from st_stereo.core.triangulation import at_their_features
 from st_stereo.lepton.pairing import pair_times_from_values
 from st_stereo.nodes import conversions, diagnostics, people_messages
 from st_stereo.nodes.node_parameters import people_config_parameters, PEOPLE_PARAMETERS
@@ -63,6 +65,12 @@ def optional_vision_msgs():
         return importlib.import_module('vision_msgs.msg')
     except ImportError:
         return None
+
+
+NO_FEATURE_PIXELS = ('points2 without the fields u, v (a matcher before 2026-12-07, or a '
+                     'filter that dropped them): points used where they lie; the people '
+                     'stage was tuned on points at their features (point_location feature '
+                     'upstream, or keep the fields)')
 
 
 class PeopleNode(Node):
@@ -116,7 +124,9 @@ class PeopleNode(Node):
                        'right_image_rejected': 0, 'pairs_without_pair_info': 0,
                        'pair_info_unreadable': 0, 'points_behind_camera': 0,
                        'dropped_frame_mismatch': 0, 'dropped_internal_error': 0,
-                       'points_placed_at_their_features': 0}
+                       'points_placed_at_their_features': 0,
+                       'clouds_without_feature_pixels': 0}
+        self.last_without_pixels = False
         if all(values[name] == next(p.default for p in PEOPLE_PARAMETERS if p.name == name)
                for name in POSE_PARAMETERS):
             self.get_logger().warning(
@@ -294,6 +304,10 @@ class PeopleNode(Node):
         points = np.column_stack([fields['x'], fields['y'], fields['z']])
         points, placed = at_their_features(points, fields['u'], fields['v'], p)
         self.counts['points_placed_at_their_features'] += placed
+        # A cloud without u, v: an older matcher's (its points at their features) or a filter
+        # that dropped the fields (its points perhaps at their structure): used as they are.
+        self.last_without_pixels = fields['u'] is None or fields['v'] is None
+        self.counts['clouds_without_feature_pixels'] += int(self.last_without_pixels)
         finite = np.isfinite(points).all(axis=1)
         self.counts['points_not_finite'] += int((~finite).sum())
         behind = finite & ~(points[:, 2] > 0)
@@ -353,6 +367,8 @@ class PeopleNode(Node):
                 self.counts['pairs_without_image']:
             level, message = diagnostics.WARN, 'no left/image_rect with the stamps of ' \
                 'points2 (use_image): no people can be found'
+        elif self.last_without_pixels:
+            level, message = diagnostics.WARN, NO_FEATURE_PIXELS
         elif self.right_error:
             level, message = diagnostics.WARN, f'no silhouettes: {self.right_error}'
         elif self.use_right and self.counts['pairs_without_right_image'] and \

@@ -22,6 +22,7 @@ from st_stereo.core.calibration.targets import CalibrationTarget, grid_numbering
 from st_stereo.core.config import STConfig
 from st_stereo.core.matcher import StereoMatcher
 from st_stereo.core.rectification import StereoRectifier
+from st_stereo.core.triangulation import at_their_features
 from st_stereo.tools.calibrate import calibrate, Collector, report
 from st_stereo.tools.eval_pipeline import OUTLIER_M, RANGE_M
 
@@ -103,15 +104,18 @@ def range_errors(result, calibration, cameras, scene, supersample=4):
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
     du, dv = (a.ravel() for a in np.meshgrid(offsets, offsets))
     projection = np.asarray(calibration.projection)
-    # The pixel each point was triangulated at (MatchResult.x_point: its feature's by default).
-    u = (result.x_point[:, None] + np.r_[0.0, du][None]).ravel()
-    v = (result.y_point[:, None] + np.r_[0.0, dv][None]).ravel()
+    # Scored at the feature's pixel (MatchResult.x_left, y), the point put back on its ray at
+    # its depth: points2 places it at its window's structure (point_location), where a
+    # depth-edge pixel's truth holds either side's range and hides the calibration's error.
+    points, _ = at_their_features(result.points, result.x_left, result.y, projection)
+    u = (np.asarray(result.x_left, dtype=float)[:, None] + np.r_[0.0, du][None]).ravel()
+    v = (np.asarray(result.y, dtype=float)[:, None] + np.r_[0.0, dv][None]).ravel()
     rectified = np.column_stack([(u - projection[0, 2]) / projection[0, 0],
                                  (v - projection[1, 2]) / projection[1, 1], np.ones(len(u))])
     directions = rectified @ np.asarray(calibration.rectification) @ camera.rotation
     hits = scene.cast(camera.centre, directions, with_temperature=False)
     ranges = np.linalg.norm(hits.points - camera.centre, axis=1).reshape(len(result), -1)
-    estimated = np.linalg.norm(result.points, axis=1)
+    estimated = np.linalg.norm(points, axis=1)
     low, high = ranges[:, 1:].min(axis=1), ranges[:, 1:].max(axis=1)
     centres = hits.points.reshape(len(result), -1, 3)[:, 0]
     seen = scene.cast(right_camera.centre, centres - right_camera.centre,

@@ -38,8 +38,8 @@ import dataclasses
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from st_stereo.core.people import at_their_features, PeopleConfig, PeopleEstimator, \
-    world_from_rectified
+from st_stereo.core.people import PeopleConfig, PeopleEstimator, world_from_rectified
+from st_stereo.core.triangulation import at_their_features
 
 HIT_M = 0.5
 VISIBLE_PX = 40     # a person with fewer labelled pixels in the left image is out of view

@@ -281,19 +281,18 @@ person before the points can be thinned like this.
 
 **Where the point is placed** (``point_location``, since 2026-12-06,
 ``st_stereo.core.point_location``; the tables above use the default, ``structure`` since
-2026-12-07, ``feature`` before). A 9-pixel
-POC window spans a whole person at 80x60, and a feature one to four pixels off a strong edge
-carries the edge's disparity. With ``point_location: structure`` the point is triangulated at
-the centroid of the window's squared Hann weight times squared horizontal gradient (the
-weight a windowed least-squares shift gives each pixel's local shift; for POC, which whitens
-the spectrum, an approximation chosen by measurement) instead of at the feature's pixel.
-Disparities and matches are unchanged (and so the shifted-frame protocol, whose uniform shift
-cannot show where a point is placed); the points move by 0.62 px median (p90 1.67, max 3.1 px,
-every fifth pair of the recording); the centroids cost 1.0-2.0 ms per 80x60 pair of 556
-matches (``structure_offsets`` timed alone, two runs, the second on a loaded machine; in
-`st-stereo bench` it is part of the triangulation stage). The ``DisparityImage`` keeps every
-match at its feature's pixel (placed at their structure, 26-41 % of the points would share a
-pixel with another). Measured with
+2026-12-07, ``feature`` before). A 9-pixel POC window spans a whole person at 80x60, and a
+feature one to four pixels off a strong edge carries the edge's disparity. With
+``point_location: structure`` the point is triangulated at the centroid of the window's squared
+Hann weight times squared horizontal gradient (the weight a windowed least-squares shift gives
+each pixel's local shift; for POC, which whitens the spectrum, an approximation chosen by
+measurement) instead of at the feature's pixel. Disparities and matches are unchanged (and so
+the shifted-frame protocol, whose uniform shift cannot show where a point is placed); the
+points move by 0.62 px median (p90 1.67, max 3.1 px, every fifth pair of the recording); the
+centroids cost 1.0-2.0 ms per 80x60 pair of 556 matches (``structure_offsets`` timed alone, two
+runs, the second on a loaded machine; in `st-stereo bench`, part of the triangulation stage,
+0.41 ms, 2026-12-07). The ``DisparityImage`` keeps every match at its feature's pixel (placed
+at their structure, 26-41 % of the points would share a pixel with another). Measured with
 `st-stereo eval points --stride 4 [--set point_location=structure]` (2026-12-06, without the
 temporal check above; feature -> structure; the weighting chosen among five on synchronized
 pairs of the three tuning sequences, meeting_room run once after the choice):
@@ -335,13 +334,14 @@ points of features on the cool side of their window's structure was not kept (th
 recall); re-measured on 2026-12-07 with that day's people stage: sit_down 85.6 %, far_standing
 96.3 -> 95.6 %. Since 2026-12-07 ``points2`` carries each match's feature pixel (fields ``u``,
 ``v``) and the people node puts every point back on its feature's ray at its depth
-(``st_stereo.core.people.at_their_features``; `st-stereo eval people` does the same), so the
-people stage sees what it was tuned on and every other consumer gets the structure's points:
-`st-stereo eval people` (all ten sequences and the recording) gave every row of its table of
-record to the digit, and the main job through the node processes recall 98.2 %, precision 100
-%, MOTA 0.982, horizontal error median / p95 0.099 / 0.162 -> 0.099 / 0.158 m (the node now
-takes the exact feature pixel where it projected float32 points), while its 3-D outliers over
-all points went 2.2 -> 1.5 %. The centroids cost 1.0-2.0 ms per 80x60 pair (docs/speed.md).
+(``st_stereo.core.triangulation.at_their_features``; `st-stereo eval people` does the same), so
+the people stage sees what it was tuned on and every other consumer gets the structure's
+points: `st-stereo eval people` (all ten sequences and the recording) gave every row of its
+table of record to the digit, and the main job through the node processes recall 98.2 %,
+precision 100 %, MOTA 0.982, horizontal error median / p95 0.099 / 0.162 -> 0.099 / 0.158 m
+(the node now takes the exact feature pixel where it projected float32 points), while its 3-D
+outliers over all points went 2.2 -> 1.5 %. The centroids cost 0.41 ms per 80x60 pair in
+`st-stereo bench` (docs/speed.md).
 
 **Both options together** (`st-stereo eval points --stride 4 --set point_location=structure
 --set temporal_tolerance_px=0.3`, 2026-12-06): 3-D outliers over all points 3.3 / 0.4 / 1.1 %
