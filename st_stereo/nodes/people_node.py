@@ -4,8 +4,8 @@
 Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence, u, v: each
 point is put back on the ray of its feature's pixel u, v at its depth, ``at_their_features``;
 any PointCloud2 with x, y, z works, used as it lies, with a WARN when u, v are missing),
-``left/image_rect`` (the warm foreground, ``use_image``: the image of the points' stamp, which the rectifier publishes before the matcher has matched it;
-a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
+``left/image_rect`` (the warm foreground, ``use_image``: the image of the points' stamp,
+which the rectifier publishes before the matcher has matched it; a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
 skipped, the tracks coast and the messages still go out) and ``left/camera_info`` (its R turns
 the rectified frame into the raw optical one, its P gives each point's pixel; a camera_info
 with a P or R that cannot be used is dropped, counted and named in the diagnostics). With
