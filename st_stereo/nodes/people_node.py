@@ -4,18 +4,19 @@
 Subscribes ``points2`` (the rectified left frame: x, y, z, disparity, confidence, u, v: each
 point is put back on the ray of its feature's pixel u, v at its depth, ``at_their_features``;
 any PointCloud2 with x, y, z works, used as it lies, with a WARN when u, v are missing),
-``left/image_rect`` (the warm foreground, ``use_image``: the image of the points' stamp,
-which the rectifier publishes before the matcher has matched it; a pair whose image has not arrived is counted, ``pairs_without_image``, and its detections are
-skipped, the tracks coast and the messages still go out) and ``left/camera_info`` (its R turns
-the rectified frame into the raw optical one, its P gives each point's pixel; a camera_info
-with a P or R that cannot be used is dropped, counted and named in the diagnostics). With
-``use_image`` and ``silhouette_margin_counts`` > 0 also ``right/image_rect`` and
-``right/camera_info`` (its P: ``fx B`` and the right principal point): far bodies starved of
-matches are placed by their silhouettes' disparity; a pair without the right image of its
-stamp is counted (``pairs_without_right_image``) and gets no silhouettes. ``pair_info`` (the
-driver's, as the matcher reads it) gives each pair's camera skew, for a moving silhouette's
-disparity; a pair without it is counted (``pairs_without_pair_info``) and its silhouettes
-are not corrected for the skew.
+``left/image_rect`` (the warm foreground, ``use_image``: the image of the points' stamp, which
+the rectifier publishes before the matcher has matched it; a pair whose image has not arrived
+is counted, ``pairs_without_image``, and its detections are skipped, the tracks coast and the
+messages still go out) and ``left/camera_info`` (its R turns the rectified frame into the raw
+optical one, its P gives each point's pixel; a camera_info with a P or R that cannot be used is
+dropped, counted and named in the diagnostics). With ``use_image`` and
+``silhouette_margin_counts`` > 0 also ``right/image_rect`` and ``right/camera_info`` (its P:
+``fx B`` and the right principal point): far bodies starved of matches are placed by their
+silhouettes' disparity; a pair without the right image of its stamp is counted
+(``pairs_without_right_image``) and gets no silhouettes. ``pair_info`` (the driver's, as the
+matcher reads it) gives each pair's camera skew, for a moving silhouette's disparity; a pair
+without it is counted (``pairs_without_pair_info``) and its silhouettes are not corrected for
+the skew.
 
 Publishes, each with the pair's stamp and ``world_frame``: ``people/poses``
 (geometry_msgs/PoseArray), ``people/detections`` (PointCloud2, one point per person:
