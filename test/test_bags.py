@@ -540,3 +540,26 @@ def test_a_bags_stamps_are_published_to_the_nanosecond(tmp_path):
         spin_until_finished(executor, driver, 30.0)
         spin_for(executor, 0.5)
     assert driver.published == 6 and sorted(received) == recorded
+
+
+@pytest.mark.parametrize('encoding, code', [('16UC1', 0), ('rgb8', 1)])
+def test_a_replay_with_exit_at_end_ends_its_process(tmp_path, encoding, code):
+    # The node stayed up after its bag: a scripted replay (or a launch file that shuts down
+    # when the driver exits) never ended. With exit_at_end it exits after the last pair: 0,
+    # or 1 when the bag gave no pair.
+    import subprocess
+    import sys
+    from rosbag2_layouts import write_bag
+    start = 1_714_557_600.0
+    stamps = [start + 0.1136 * i for i in range(6)]
+    bag = tmp_path / 'short'
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding=encoding))
+    process = subprocess.run(
+        [sys.executable, '-c', 'import sys; from st_stereo.nodes.driver_node import main; '
+         'sys.exit(main())', '--ros-args', '-p', 'source:=bag', '-p', f'bag:={bag}',
+         '-p', 'exit_at_end:=true', '-p', 'replay_wait:=0.0'],
+        capture_output=True, text=True, timeout=60)
+    output = process.stdout + process.stderr
+    assert process.returncode == code, output
+    published = 6 if code == 0 else 0
+    assert f'{published} pairs published; exiting (exit_at_end, code {code})' in output

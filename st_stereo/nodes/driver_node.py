@@ -57,6 +57,7 @@ from std_srvs.srv import Trigger
 LIVE_SOURCES = ('spi', 'purethermal')
 RECORDED_SOURCES = ('bag', 'capture')      # replay_wait holds them for their consumers
 REPLAY_SETTLE_S = 0.3       # after this side sees its subscribers, for theirs to see it
+EXIT_LINGER_S = 0.5         # exit_at_end: before and after the final status
 
 
 class DriverNode(Node):
@@ -78,6 +79,7 @@ class DriverNode(Node):
                              f'{self.duration!r}')
         self.replay_wait = diagnostics.non_negative_number('replay_wait', value('replay_wait'))
         self.replay_subscribers = value('replay_subscribers')
+        self.exit_at_end = bool(value('exit_at_end'))
         if isinstance(self.replay_subscribers, bool) or \
                 not isinstance(self.replay_subscribers, int) or self.replay_subscribers < 1:
             raise ValueError(f'replay_subscribers: expected an integer >= 1, got '
@@ -401,9 +403,21 @@ class DriverNode(Node):
                 self.get_logger().error(f'reading stopped: {self.last_error}')
         finally:
             self.finished.set()
-        if not self.last_error and not self._stop.is_set():
+        if self.last_error or self._stop.is_set():
+            return
+        if not (self.exit_at_end and self.source in RECORDED_SOURCES):
             self.get_logger().info(f'{self.source}: {ended}: {self.published} pairs published '
                                    f'(the node stays up; its status says finished)')
+            return
+        # The last pair's reliable messages and the final status go out, and nodes of the same
+        # process (stereo_pipeline) finish that pair, before the process ends.
+        self._stop.wait(EXIT_LINGER_S)
+        self._publish_diagnostics()
+        self.exit_code = 0 if self.published else 1
+        self.get_logger().info(f'{self.source}: {ended}: {self.published} pairs published; '
+                               f'exiting (exit_at_end, code {self.exit_code})')
+        self._stop.wait(EXIT_LINGER_S)
+        self.context.try_shutdown()
 
     def _to_stamp_s(self, acquired, live, clock_start, base):
         """Stamp (node-clock seconds) of an acquisition time of the source."""

@@ -36,6 +36,10 @@ DRIVER_PARAMETERS = [
                   'replay_subscribers subscribers (a consumer started beside the driver is '
                   'discovered within a second or so, and what is published before is lost); '
                   'then start anyway, logging the topics still without; 0: start at once'),
+    NodeParameter('exit_at_end', False, 'bag, capture: end the process when the source ends '
+                  '(after publishing the last pair and the final status; exit code 0, or 1 '
+                  'when the source gave no pair), for scripted replays and launch files with '
+                  'an on-exit shutdown; false: the node stays up, its status says finished'),
     NodeParameter('replay_subscribers', 1, 'bag, capture: subscribers each of left/right '
                   'image_raw and camera_info must have before the replay starts (replay_wait)'),
     NodeParameter('telemetry', 'off', 'camera telemetry rows: off, header or footer (a capture '
