@@ -436,18 +436,28 @@ def test_a_bag_is_read_as_its_frames_are_needed_not_whole(tmp_path):
     left.close()
 
 
-def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finished(tmp_path):
+def _flat_bag(tmp_path, encoding, frames=4):
+    """Write a bag of ``frames`` flat pairs (one stamp per pair) in ``encoding``; its path."""
     from rosbag2_layouts import write_bag
     start = 1_714_557_600.0
-    stamps = [start + 0.1136 * i for i in range(4)]
-    bag = tmp_path / 'encoding'
-    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='rgb8'))
+    stamps = [start + 0.1136 * i for i in range(frames)]
+    bag = tmp_path / encoding
+    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding=encoding))
+    return bag
+
+
+def _replayed_by_the_driver(bag):
+    """Return the driver after it read ``bag``, its pairs status and its left camera's."""
     with ros_nodes() as (context, executor, add):
         driver = add(DriverNode(context=context, parameter_overrides=[
             Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
         spin_until_finished(executor, driver, 30.0)
-        statuses = [driver._pairs_status(time.monotonic()),
-                    driver._camera_status(0, time.monotonic())]
+        return driver, driver._pairs_status(time.monotonic()), \
+            driver._camera_status(0, time.monotonic())
+
+
+def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finished(tmp_path):
+    driver, *statuses = _replayed_by_the_driver(_flat_bag(tmp_path, 'rgb8'))
     assert driver.published == 0
     assert (statuses[0].level, statuses[0].message) == \
         (DiagnosticStatus.ERROR, 'finished: the source gave no pair')
@@ -459,16 +469,7 @@ def test_a_bag_of_frames_the_driver_refuses_names_why_and_says_when_it_has_finis
 def test_a_bag_of_16uc1_counts_replays_as_mono16(tmp_path):
     # libuvc_camera (PureThermal boards) records Y16 as 16UC1: the same bytes as mono16. The
     # driver's bag source refused every such frame.
-    from rosbag2_layouts import write_bag
-    start = 1_714_557_600.0
-    stamps = [start + 0.1136 * i for i in range(4)]
-    bag = tmp_path / 'uvc'
-    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding='16UC1'))
-    with ros_nodes() as (context, executor, add):
-        driver = add(DriverNode(context=context, parameter_overrides=[
-            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
-        spin_until_finished(executor, driver, 30.0)
-        status = driver._pairs_status(time.monotonic())
+    driver, status, _ = _replayed_by_the_driver(_flat_bag(tmp_path, '16UC1'))
     assert driver.published == 4
     assert (status.level, status.message) == (DiagnosticStatus.OK, 'finished: 4 pairs published')
 
@@ -549,11 +550,7 @@ def test_a_replay_with_exit_at_end_ends_its_process(tmp_path, encoding, code):
     # or 1 when the bag gave no pair.
     import subprocess
     import sys
-    from rosbag2_layouts import write_bag
-    start = 1_714_557_600.0
-    stamps = [start + 0.1136 * i for i in range(6)]
-    bag = tmp_path / 'short'
-    write_bag(bag, 9, 'mcap', _raw_topics(stamps, stamps, encoding=encoding))
+    bag = _flat_bag(tmp_path, encoding, frames=6)
     process = subprocess.run(
         [sys.executable, '-c', 'import sys; from st_stereo.nodes.driver_node import main; '
          'sys.exit(main())', '--ros-args', '-p', 'source:=bag', '-p', f'bag:={bag}',

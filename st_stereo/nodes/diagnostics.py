@@ -23,11 +23,11 @@ def positive_number(name, value, unit):
     return float(value)
 
 
-def non_negative_number(name, value, unit='seconds'):
+def non_negative_number(name, value, expected='seconds >= 0'):
     """Return a parameter's value as a float; ValueError naming it unless finite and >= 0."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             not (math.isfinite(value) and value >= 0):
-        raise ValueError(f'{name}: expected a finite number of {unit} >= 0, got {value!r}')
+        raise ValueError(f'{name}: expected {expected}, got {value!r}')
     return float(value)
 
 

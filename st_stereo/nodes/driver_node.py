@@ -22,7 +22,6 @@ one thread.
 """
 
 import collections
-import math
 import queue
 import threading
 import time
@@ -72,11 +71,8 @@ class DriverNode(Node):
         self.publish_wall_times = {}
         self.telemetry = value('telemetry')
         self.max_delta = value('max_pair_delta')
-        self.duration = value('duration')
-        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and
-                self.duration >= 0):
-            raise ValueError(f'duration: expected seconds >= 0 (0: until the source ends), got '
-                             f'{self.duration!r}')
+        self.duration = diagnostics.non_negative_number(
+            'duration', value('duration'), 'seconds >= 0 (0: until the source ends)')
         self.replay_wait = diagnostics.non_negative_number('replay_wait', value('replay_wait'))
         self.replay_subscribers = value('replay_subscribers')
         self.exit_at_end = bool(value('exit_at_end'))
