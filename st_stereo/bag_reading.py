@@ -18,6 +18,12 @@ One place for ``bag_play``, the driver's ``source:=bag`` and ``st-stereo calibra
 - ``normalized_msgtype``: ``pkg/msg/Name``, also for the old ``pkg/Name`` spelling.
 - ``open_bag``: a damaged or foreign bag is one ``BagError`` line naming the file, the line
   where the parser stopped (when it says) and what is wrong, never a traceback.
+- ``open_bag``, recordings that did not end (power cut, ``kill -9``, a copy cut short): an
+  MCAP file without its footer is read up to its last complete record, as rosbag2's MCAP
+  plugin reads one (the mcap library's fallback scan); rosbags (0.11) refused the whole file
+  ("File end magic is invalid"). A bag directory without ``metadata.yaml`` (rosbag2 writes it
+  when the recording ends) and with one storage file is read from that file, as
+  ``ros2 bag play FILE`` does. Each is said in the reader's ``notes`` (``bag_notes``).
 """
 
 import importlib
@@ -37,12 +43,21 @@ def open_bag(path):
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f'{path}: no such bag')
+    notes = []
+    if path.is_dir() and not (path / 'metadata.yaml').exists():
+        path = _lone_storage_file(path)
+        notes.append(f'{path.parent}: no metadata.yaml (a recording that did not end, or a '
+                     f'copy without it): reading {path.name} alone')
     metadata = path / 'metadata.yaml' if path.is_dir() else path
     try:
         reader = _reader_class()(path)
         reader.open()
     except Exception as error:      # noqa: B902 - rosbags and its YAML parser raise many kinds
         raise BagError(f'{metadata}: {_one_line(error)}') from None
+    storages = getattr(reader.storage, 'storages', None) or [reader.storage]
+    notes += [storage.cut_short_note for storage in storages
+              if getattr(storage, 'cut_short_note', None)]
+    reader.notes = notes
     problem = _metadata_shape_problem(metadata) if path.is_dir() else None
     if problem:
         _close_quietly(reader)
@@ -56,6 +71,62 @@ def open_bag(path):
             _close_quietly(reader)
             raise BagError(f'{metadata}: topic {connection.topic}: {error}') from None
     return reader
+
+
+def bag_notes(path):
+    """Return what ``open_bag`` had to work around in a bag (see the module docstring)."""
+    reader = open_bag(path)
+    try:
+        return list(reader.notes)
+    finally:
+        _close_quietly(reader)
+
+
+STORAGE_SUFFIXES = ('.mcap', '.db3')
+
+
+def _lone_storage_file(directory):
+    """Return the one storage file of a bag directory without metadata.yaml (else BagError)."""
+    files = sorted(p for p in directory.iterdir() if p.suffix in STORAGE_SUFFIXES)
+    if len(files) == 1:
+        return files[0]
+    if not files:
+        raise BagError(f'{directory}: no metadata.yaml and no storage file (.mcap, .db3): '
+                       f'not a rosbag2 directory')
+    raise BagError(f'{directory}: no metadata.yaml and {len(files)} storage files '
+                   f'({", ".join(p.name for p in files)}): `ros2 bag reindex {directory}` '
+                   f'writes it; or give one of the files')
+
+
+# MCAP opcodes (mcap.dev/spec), to name the record a file was cut in.
+_MCAP_RECORDS = {0x01: 'header', 0x02: 'footer', 0x03: 'schema', 0x04: 'channel',
+                 0x05: 'message', 0x06: 'chunk', 0x07: 'message index', 0x08: 'chunk index',
+                 0x09: 'attachment', 0x0A: 'attachment index', 0x0B: 'statistics',
+                 0x0C: 'metadata', 0x0D: 'metadata index', 0x0E: 'summary offset',
+                 0x0F: 'data end'}
+_MCAP_DATA_END = 0x0F
+
+
+def complete_records_end(stream, start, size):
+    """
+    Return ``(end, cut)`` of an MCAP data section read from ``start`` of a ``size``-byte file.
+
+    ``end``: the offset after the last complete top-level record (records are an opcode, a
+    little-endian uint64 length, then that many bytes), before a ``data end`` record, or
+    before zero bytes (a file system's preallocated tail). ``cut``: the name of the record
+    left incomplete at ``end``, or None when the data section ends there.
+    """
+    position = start
+    while position + 9 <= size:
+        stream.seek(position)
+        head = stream.read(9)
+        opcode, length = head[0], int.from_bytes(head[1:9], 'little')
+        if opcode == 0 or opcode == _MCAP_DATA_END:
+            return position, None
+        if position + 9 + length > size:
+            return position, _MCAP_RECORDS.get(opcode, f'unknown record 0x{opcode:02x}')
+        position += 9 + length
+    return position, None if position == size else 'record header'
 
 
 # Fields rosbags (0.11) takes as they are: a damaged metadata.yaml can make ``files`` a string
@@ -104,10 +175,12 @@ def _skip_empty_definitions(cursor, statement, bindings):
 
 
 def _reader_class():
-    """Return rosbags' Reader with the sqlite3 storage reader of the module docstring."""
+    """Return rosbags' Reader with the sqlite3 and MCAP readers of the module docstring."""
     import apsw
     from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.errors import ReaderError
     from rosbags.rosbag2.reader import DirectoryReader
+    from rosbags.rosbag2.storage_mcap import McapReader
     from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
     class _Sqlite3Reader(Sqlite3Reader):
@@ -120,12 +193,53 @@ def _reader_class():
             finally:
                 apsw.connection_hooks.remove(hook)
 
+    class _McapReader(McapReader):
+        cut_short_note = None
+
+        def _open(self):
+            try:
+                super()._open()
+            except ReaderError as error:
+                if 'end magic' not in str(error):
+                    raise
+                self._open_cut_short()
+
+        def _open_cut_short(self):
+            # No footer: read the complete records of the data section, in file order (the
+            # summary with the chunk index is written last, so it is gone too).
+            size = self.bio.seek(0, 2)
+            self.data_end, cut = complete_records_end(self.bio, self.data_start, size)
+            self.meta_scan()
+            counts = self.statistics.channel_message_counts
+            self.connections = [c._replace(msgcount=counts.get(c.id, 0))
+                                for c in self.connections]
+            count = self.statistics.message_count
+            self.metadata = self.metadata._replace(
+                duration=self.statistics.end_time - self.statistics.start_time + 1
+                if count else 0,
+                start_time=self.statistics.start_time if count else 2 ** 63 - 1,
+                end_time=self.statistics.end_time + 1 if count else 0, message_count=count)
+            lost = f'; bytes {self.data_end} to {size} (an incomplete {cut} record) not read' \
+                if cut else ''
+            self.cut_short_note = (
+                f'{self.path}: no MCAP footer (a recording that did not end, or a copy cut '
+                f'short): {count} messages read from its complete records{lost}')
+
+        def messages(self, *args, **kwargs):
+            # Without a chunk index rosbags scans, but refuses messages out of time order;
+            # rosbag2's fallback scan yields them in file order, and so does this.
+            if self.cut_short_note is None:
+                yield from super().messages(*args, **kwargs)
+                return
+            yield from self.messages_scan(*args, **kwargs)
+
     class _DirectoryReader(DirectoryReader):
-        STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS, 'sqlite3': _Sqlite3Reader}
+        STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS, 'sqlite3': _Sqlite3Reader,
+                           'mcap': _McapReader}
 
     class _Reader(Reader):
         STORAGE_PLUGINS = {**Reader.STORAGE_PLUGINS, 'dir': _DirectoryReader,
-                           '.db3': _Sqlite3Reader}
+                           '.db3': _Sqlite3Reader, '.mcap': _McapReader}
     return _Reader
 
 

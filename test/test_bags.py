@@ -560,3 +560,127 @@ def test_a_replay_with_exit_at_end_ends_its_process(tmp_path, encoding, code):
     assert process.returncode == code, output
     published = 6 if code == 0 else 0
     assert f'{published} pairs published; exiting (exit_at_end, code {code})' in output
+
+
+# --- recordings that did not end: cut short, no metadata.yaml ---------------------------------
+OFFICE_BAG = pathlib.Path(__file__).resolve().parents[1] / 'data' / 'recordings' / 'office' / \
+    'bag'
+
+
+def mcap_reference(blob):
+    """
+    Return ``{topic: [data, ...]}`` of an MCAP byte string, up to where it stops.
+
+    Read by the ``mcap`` package's stream reader (foxglove's, not the reader under test).
+    """
+    import io
+    import struct
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+    topics, out = {}, {}
+    try:
+        for record in StreamReader(io.BytesIO(blob)).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                out.setdefault(topics[record.channel_id], []).append(bytes(record.data))
+    except (McapError, struct.error):       # the cut: its reader stops there
+        pass
+    return out
+
+
+def read_by_topic(path):
+    from st_stereo.bag_reading import bag_messages, open_bag
+    reader = open_bag(path)
+    try:
+        out = {}
+        for connection, _, data in bag_messages(reader):
+            out.setdefault(connection.topic, []).append(bytes(data))
+        return out, reader.notes
+    finally:
+        reader.close()
+
+
+@pytest.mark.parametrize('fraction', [0.3, 0.45, 0.8, 0.99])
+@pytest.mark.parametrize('layout', ['with metadata.yaml', 'file alone', 'zero-filled tail'])
+def test_an_mcap_cut_short_is_read_to_its_last_complete_record(tmp_path, fraction, layout):
+    # A power cut or kill -9 while recording leaves an MCAP without its summary and footer
+    # (and no metadata.yaml); rosbag2 plays what its complete records hold, rosbags refused it.
+    import shutil
+    whole = (OFFICE_BAG / 'bag.mcap').read_bytes()
+    cut = whole[:int(len(whole) * fraction)]
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    stored = cut + bytes(4096) if layout == 'zero-filled tail' else cut
+    (bag / 'bag.mcap').write_bytes(stored)
+    if layout == 'with metadata.yaml':
+        shutil.copy(OFFICE_BAG / 'metadata.yaml', bag / 'metadata.yaml')
+    expected = mcap_reference(cut)
+    got, notes = read_by_topic(bag)
+    assert got == expected                     # every complete message, none invented
+    count = sum(len(v) for v in got.values())
+    if fraction < 0.4:
+        assert count == 0                      # the first chunk is incomplete
+    else:
+        assert count > 200
+    assert any(f'{bag / "bag.mcap"}: no MCAP footer' in note and f'{count} messages read' in
+               note for note in notes), notes
+    if layout != 'with metadata.yaml':
+        assert any('no metadata.yaml' in note for note in notes), notes
+    if fraction < 0.99 and layout != 'zero-filled tail':
+        assert any('an incomplete chunk record) not read' in note for note in notes), notes
+
+
+def test_a_bag_directory_without_metadata_yaml(tmp_path, people_80x60):
+    from st_stereo.bag_reading import BagError, bag_notes, open_bag
+    # sqlite3 (rosbag2's database is whole after a crash; metadata.yaml is written at the end)
+    bag = tmp_path / 'db3'
+    write_external_bag(bag, people_80x60, 3.0, pairs=3)
+    (bag / 'metadata.yaml').unlink()
+    got, notes = read_by_topic(bag)
+    assert {topic: len(v) for topic, v in got.items()} == {
+        f'/stereo/{name}': 3 for name in RAW_TOPICS}
+    assert notes == [f'{bag}: no metadata.yaml (a recording that did not end, or a copy '
+                     f'without it): reading {bag.name}.db3 alone']
+    assert bag_notes(OFFICE_BAG) == []         # a whole bag: nothing to say
+    # Split files without metadata.yaml: their order and completeness are not known.
+    split = tmp_path / 'split'
+    split.mkdir()
+    for name in ('rec_0.mcap', 'rec_1.mcap'):
+        (split / name).write_bytes((OFFICE_BAG / 'bag.mcap').read_bytes())
+    with pytest.raises(BagError, match=r'2 storage files \(rec_0.mcap, rec_1.mcap\): '
+                                       r'`ros2 bag reindex'):
+        open_bag(split)
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    with pytest.raises(BagError, match='no metadata.yaml and no storage file'):
+        open_bag(empty)
+
+
+def test_the_driver_replays_a_recording_that_did_not_end_and_says_so(tmp_path):
+    from rosbags.typesys import get_typestore, Stores
+    whole = (OFFICE_BAG / 'bag.mcap').read_bytes()
+    cut = whole[:int(len(whole) * 0.45)]
+    bag = tmp_path / 'cut'
+    bag.mkdir()
+    (bag / 'bag.mcap').write_bytes(cut)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    stamps = {}
+    for topic, messages in mcap_reference(cut).items():
+        if topic.endswith('image_raw'):
+            for data in messages:
+                stamp = typestore.deserialize_cdr(data, 'sensor_msgs/msg/Image').header.stamp
+                stamps.setdefault((stamp.sec, stamp.nanosec), set()).add(topic)
+    pairs = sum(len(topics) == 2 for topics in stamps.values())
+    assert pairs > 40
+    with ros_nodes() as (context, executor, add):
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        spin_until_finished(executor, driver, 60.0)
+        status = driver._pairs_status(time.monotonic())
+    assert driver.published == pairs
+    assert len(driver.bag_notes) == 2 and 'no MCAP footer' in driver.bag_notes[1]
+    values = {kv.key: kv.value for kv in status.values}
+    assert 'no MCAP footer' in values['bag read as far as it goes']
+    assert status.level == DiagnosticStatus.OK

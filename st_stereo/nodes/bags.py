@@ -241,6 +241,8 @@ def play_main(argv=None):
     status = 0
     try:
         with until_shutdown():
+            for note in node.reader.notes:
+                print(f'bag_play: {note}', file=sys.stderr)
             for topic, reason in node.skipped:
                 print(f'bag_play: skipping {topic}: {reason}', file=sys.stderr)
             if not node.publishers_by_id:

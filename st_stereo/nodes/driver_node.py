@@ -118,6 +118,7 @@ class DriverNode(Node):
         self._lost_reported = [0, 0]
         self.ffc_pairs = 0
         self.recorded_pair_info = None     # source bag: what the bag's pair_info topic says
+        self.bag_notes = []                # source bag: what reading it had to work around
         self.replay_started_without = []   # bag, capture: topics short of subscribers at start
         self.published = 0
         self.last_telemetry = [None, None]
@@ -208,6 +209,12 @@ class DriverNode(Node):
             if not self._value('bag'):
                 raise ValueError('source bag: parameter bag (the rosbag2 directory or file to '
                                  'replay) is empty')
+            from st_stereo.bag_reading import bag_notes
+            # A recording that did not end is read as far as it goes: said once, and kept in
+            # the diagnostics.
+            self.bag_notes = bag_notes(self._value('bag'))
+            for note in self.bag_notes:
+                self.get_logger().warning(note)
             # Images of a recorded pair share its stamp: the skew is only in its pair_info.
             self.recorded_pair_info = RecordedPairInfo(self._value('bag'))
             sides = open_bag_sides(self._value('bag'))
@@ -563,6 +570,8 @@ class DriverNode(Node):
         if self.source in RECORDED_SOURCES:
             values['replay started short of subscribers on'] = \
                 ', '.join(self.replay_started_without) or 'none'
+        if self.bag_notes:
+            values['bag read as far as it goes'] = ' | '.join(self.bag_notes)
         if self.recorded_pair_info is not None:
             values.update(self.recorded_pair_info.counts)
             if self.recorded_pair_info.last_problem:

@@ -12,6 +12,7 @@ explained in ``st_stereo.core.calibration.targets`` and ``st_stereo.core.calibra
 import dataclasses
 import json
 import pathlib
+import sys
 
 import cv2
 import numpy as np
@@ -74,7 +75,10 @@ def bag_frames(path):
 
 def pairs_from_bag(path):
     """Pairs of a rosbag2's raw image topics with identical stamps (none: an error says why)."""
+    from st_stereo.bag_reading import bag_notes
     frames = bag_frames(path)
+    for note in bag_notes(path):        # a recording that did not end: read as far as it goes
+        print(f'calibrate: {note}', file=sys.stderr)
     stamps = sorted(set(frames['left']) & set(frames['right']))
     if not stamps and frames['left'] and frames['right']:
         raise CalibrationInputError(
