@@ -5,12 +5,16 @@ import pathlib
 SIDES = ('left', 'right')
 
 
-def raw_image_messages(path):
+def raw_image_messages(path, zero_stamped=None):
     """
     Yield ``(side, stamp_ns, msg)`` for the topics ending in left/image_raw and right/image_raw.
 
     ``msg`` is a rosbags sensor_msgs/Image (fields as in ROS); messages come in bag order. A
     missing bag or a bag without both topics raises a ValueError naming what was found.
+    ``stamp_ns`` is the image's header stamp; an image stamped 0 (a camera node that never set
+    it) gets the time the recorder received it instead, and is counted in ``zero_stamped``
+    (``{side: count}``) when given: without it every frame had the same time, and the two
+    cameras' frames could not be paired.
     """
     from rosbags.typesys import get_typestore, Stores
 
@@ -24,12 +28,17 @@ def raw_image_messages(path):
         if set(wanted.values()) != set(SIDES):
             raise ValueError(f'{path}: expected topics ending in left/image_raw and '
                              f'right/image_raw, found {sorted(reader.topics)}')
-        for connection, _, data in bag_messages(
+        for connection, received, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
             # Older bags name types without the /msg/ part (sensor_msgs/Image).
             msg = typestore.deserialize_cdr(data, normalized_msgtype(connection.msgtype))
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            yield wanted[connection.id], stamp, msg
+            side = wanted[connection.id]
+            if stamp == 0:
+                stamp = received
+                if zero_stamped is not None:
+                    zero_stamped[side] = zero_stamped.get(side, 0) + 1
+            yield side, stamp, msg
     finally:
         reader.close()
 

@@ -684,3 +684,44 @@ def test_the_driver_replays_a_recording_that_did_not_end_and_says_so(tmp_path):
     values = {kv.key: kv.value for kv in status.values}
     assert 'no MCAP footer' in values['bag read as far as it goes']
     assert status.level == DiagnosticStatus.OK
+
+
+def test_images_stamped_zero_are_paired_by_the_time_the_recorder_received_them(tmp_path):
+    # A camera node that never sets header.stamp records every image at time 0: every frame
+    # had the same time, and the driver paired the first two and dropped the rest.
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+    start_ns, period_ns, right_after_ns = 1_714_557_600_000_000_000, 113_600_000, 30_000_000
+    pairs = 8
+    bag = tmp_path / 'zero'
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {side: writer.add_connection(f'/stereo/{side}/image_raw',
+                                                   'sensor_msgs/msg/Image', typestore=typestore)
+                       for side in ('left', 'right')}
+        for index in range(pairs):
+            msg = image_to_msg(np.full((60, 80), 8000 + index, np.uint16),
+                               Header(frame_id='cam'))      # stamp 0
+            for side, offset in (('left', 0), ('right', right_after_ns)):
+                writer.write(connections[side], start_ns + index * period_ns + offset,
+                             serialize_message(msg))
+    received = []
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('listener', context=context, namespace='stereo'))
+        listener.create_subscription(
+            Image, 'left/image_raw',
+            lambda msg: received.append(msg.header.stamp.sec * 1_000_000_000 +
+                                        msg.header.stamp.nanosec), qos_profile_sensor_data)
+        spin_for(executor, 0.5)
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+        spin_until_finished(executor, driver, 30.0)
+        spin_for(executor, 0.5)
+        status = driver._pairs_status(time.monotonic())
+    assert driver.published == pairs
+    # Each pair at the midpoint of its two images' receive times, 30 ms of skew.
+    assert sorted(received) == [start_ns + index * period_ns + right_after_ns // 2
+                                for index in range(pairs)]
+    assert driver.pairing.counters.skew_abs_max == pytest.approx(0.030, abs=1e-6)
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["images stamped 0 (the bag's receive time used)"] == str(2 * pairs)

@@ -21,7 +21,8 @@ class BagImageStream:
     """Both cameras' raw images of a bag, pulled in bag order as each camera asks for one."""
 
     def __init__(self, path):
-        self._messages = raw_image_messages(path)
+        self.zero_stamped = {side: 0 for side in SIDES}   # stamped 0: receive time used
+        self._messages = raw_image_messages(path, self.zero_stamped)
         self.pending = {side: collections.deque() for side in SIDES}
         self.pulled = 0                    # messages read from the bag so far
         self.ended = False
@@ -97,6 +98,11 @@ class BagSide:
             return None
         self.counters.unique_frames += 1
         return LeptonFrame(pixels.copy(), stamp_ns * 1e-9, index, stamp_ns=stamp_ns)
+
+    @property
+    def zero_stamped(self):
+        """Frames of this camera stamped 0 in the bag, given the recorder's receive time."""
+        return self.stream.zero_stamped[self.side]
 
     def close(self):
         """Close the bag the two sides share."""

@@ -57,6 +57,7 @@ LIVE_SOURCES = ('spi', 'purethermal')
 RECORDED_SOURCES = ('bag', 'capture')      # replay_wait holds them for their consumers
 REPLAY_SETTLE_S = 0.3       # after this side sees its subscribers, for theirs to see it
 EXIT_LINGER_S = 0.5         # exit_at_end: before and after the final status
+ZERO_STAMPED = "images stamped 0 (the bag's receive time used)"
 
 
 class DriverNode(Node):
@@ -119,6 +120,7 @@ class DriverNode(Node):
         self.ffc_pairs = 0
         self.recorded_pair_info = None     # source bag: what the bag's pair_info topic says
         self.bag_notes = []                # source bag: what reading it had to work around
+        self.zero_stamps_said = False      # source bag: images stamped 0 logged once
         self.replay_started_without = []   # bag, capture: topics short of subscribers at start
         self.published = 0
         self.last_telemetry = [None, None]
@@ -572,6 +574,14 @@ class DriverNode(Node):
                 ', '.join(self.replay_started_without) or 'none'
         if self.bag_notes:
             values['bag read as far as it goes'] = ' | '.join(self.bag_notes)
+        if self.source == 'bag':
+            zero = sum(getattr(reader, 'zero_stamped', 0) for reader in self.readers)
+            values[ZERO_STAMPED] = zero
+            if zero and not self.zero_stamps_said:
+                self.zero_stamps_said = True
+                self.get_logger().warning(f'{self._value("bag")}: images stamped 0: they get '
+                                          f'the time the recorder received them (counted: '
+                                          f'{ZERO_STAMPED})')
         if self.recorded_pair_info is not None:
             values.update(self.recorded_pair_info.counts)
             if self.recorded_pair_info.last_problem:
