@@ -21,7 +21,7 @@ class BagImageStream:
     """Both cameras' raw images of a bag, pulled in bag order as each camera asks for one."""
 
     def __init__(self, path):
-        self.zero_stamped = {side: 0 for side in SIDES}   # stamped 0: receive time used
+        self.zero_stamped = dict.fromkeys(SIDES, 0)     # stamped 0: receive time used
         self._messages = raw_image_messages(path, self.zero_stamped)
         self.pending = {side: collections.deque() for side in SIDES}
         self.pulled = 0                    # messages read from the bag so far
