@@ -14,6 +14,8 @@ RIG_ARGUMENTS = [
     ('source', '', 'driver source: sim, capture, spi, purethermal or bag (empty: as in the '
      'parameter file)'),
     ('bag', '', 'source bag: the rosbag2 directory'),
+    ('bag_namespace', '', 'source bag: the namespace of the image pair to replay, e.g. '
+     '/rig2/stereo (empty: as in the parameter file)'),
     ('left_device', '', "spi: the left camera's spidev device"),
     ('right_device', '', "spi: the right camera's spidev device"),
     ('left_i2c_bus', '', "spi: the left camera's I2C bus number"),
@@ -31,6 +33,7 @@ def launch_setup(value):
     # (launch_ros would read "1" as an integer).
     driver = {'use_sim_time': use_sim_time}
     for name, parameter in (('source', 'source'), ('bag', 'bag'),
+                            ('bag_namespace', 'bag_namespace'),
                             ('left_device', 'left_device'), ('right_device', 'right_device'),
                             ('left_camera_info_url', 'left.camera_info_url'),
                             ('right_camera_info_url', 'right.camera_info_url')):

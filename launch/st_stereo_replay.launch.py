@@ -12,6 +12,8 @@ from st_stereo import launch_support
 
 REPLAY_ARGUMENTS = [
     ('bag', '', 'the rosbag2 directory to replay (required)'),
+    ('bag_namespace', '', 'the namespace of the image pair to replay from a bag of several '
+     'rigs, e.g. /rig2/stereo (empty: the bag must hold one)'),
     ('rate', '1.0', 'replay speed, times the recorded pace'),
     ('use_sim_time', 'true', 'publish /clock from the bag and run the nodes on it'),
     ('start_delay', '3.0', 'seconds bag_play waits before the first message (for the nodes '
@@ -27,13 +29,13 @@ def bag_calibrations(value):
     if value('left_camera_info_url') and value('right_camera_info_url'):
         return [load_calibration(resolve_url(value(f'{side}_camera_info_url')))
                 for side in ('left', 'right')]
-    return list(recorded_calibrations(value('bag')))
+    return list(recorded_calibrations(value('bag'), value('bag_namespace')))
 
 
 def launch_setup(value):
     """Build the player and the nodes from the performed launch arguments (``value(name)``)."""
     from st_stereo.nodes.bags import RAW_PAIR_TOPICS
-    from st_stereo.bag_streams import raw_pair_namespace
+    from st_stereo.bag_streams import bag_pair_namespace
     if not value('bag'):
         raise ValueError('launch argument bag: the rosbag2 directory to replay is required')
     use_sim_time = launch_support.flag(value('use_sim_time'), 'use_sim_time')
@@ -41,7 +43,7 @@ def launch_setup(value):
             '--delay', str(launch_support.number(value('start_delay'), 'start_delay'))] + \
         (['--clock'] if use_sim_time else [])
     # The bag's raw pair into this launch's namespace (a bag recorded under another one).
-    recorded = raw_pair_namespace(value('bag')).rstrip('/')
+    recorded = bag_pair_namespace(value('bag'), value('bag_namespace'))
     target = '/' + value('namespace').strip('/')
     remappings = [(f'{recorded}/{topic}', f'{target}/{topic}') for topic in RAW_PAIR_TOPICS] \
         if recorded != target else []

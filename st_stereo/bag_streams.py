@@ -5,12 +5,52 @@ import pathlib
 SIDES = ('left', 'right')
 
 
-def raw_image_messages(path, zero_stamped=None):
-    """
-    Yield ``(side, stamp_ns, msg)`` for the topics ending in left/image_raw and right/image_raw.
+def image_pair_namespaces(topics):
+    """Return the namespaces under which ``topics`` hold both left/ and right/image_raw."""
+    found = [{topic[:-len(f'/{side}/image_raw')] for topic in topics
+              if topic.endswith(f'/{side}/image_raw')} for side in SIDES]
+    return sorted(found[0] & found[1])
 
-    ``msg`` is a rosbags sensor_msgs/Image (fields as in ROS); messages come in bag order. A
-    missing bag or a bag without both topics raises a ValueError naming what was found.
+
+def _shown(namespace):
+    return namespace or '/'
+
+
+def pair_namespace(path, topics, namespace=''):
+    """
+    Return the namespace of the image pair to read from a bag with ``topics`` ('' for /).
+
+    ``namespace`` (the driver's ``bag_namespace``): '' takes the bag's one namespace with both
+    left/image_raw and right/image_raw; a bag of several rigs (``/rig1/stereo``, ``/rig2/
+    stereo``) then raises a ValueError naming them (their frames were merged before); '/'
+    is the root namespace. A ValueError names what the bag has when nothing matches.
+    """
+    namespaces = image_pair_namespaces(topics)
+    if namespace:
+        wanted = '/' + namespace.strip('/') if namespace.strip('/') else ''
+        if wanted in namespaces:
+            return wanted
+        raise ValueError(f'{path}: no {wanted}/left/image_raw and {wanted}/right/image_raw '
+                         f'(bag_namespace {namespace!r}); image pairs under: '
+                         f'{", ".join(map(_shown, namespaces)) or "none"}; topics: '
+                         f'{sorted(topics)}')
+    if len(namespaces) == 1:
+        return namespaces[0]
+    if not namespaces:
+        raise ValueError(f'{path}: expected topics ending in left/image_raw and '
+                         f'right/image_raw, found {sorted(topics)}')
+    raise ValueError(f'{path}: image pairs under {len(namespaces)} namespaces '
+                     f'({", ".join(map(_shown, namespaces))}): choose one (bag_namespace; '
+                     f'--bag-namespace of calibrate and rig-pose)')
+
+
+def raw_image_messages(path, zero_stamped=None, namespace=''):
+    """
+    Yield ``(side, stamp_ns, msg)`` of a bag's left/image_raw and right/image_raw topics.
+
+    ``msg`` is a rosbags sensor_msgs/Image (fields as in ROS); messages come in bag order. The
+    topics are those of one namespace (``pair_namespace``). A missing bag or a bag without
+    both topics raises a ValueError naming what was found.
     ``stamp_ns`` is the image's header stamp; an image stamped 0 (a camera node that never set
     it) gets the time the recorder received it instead, and is counted in ``zero_stamped``
     (``{side: count}``) when given: without it every frame had the same time, and the two
@@ -23,11 +63,9 @@ def raw_image_messages(path, zero_stamped=None):
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
     try:
+        chosen = pair_namespace(path, reader.topics, namespace)
         wanted = {c.id: side for c in reader.connections for side in SIDES
-                  if c.topic.endswith(f'{side}/image_raw')}
-        if set(wanted.values()) != set(SIDES):
-            raise ValueError(f'{path}: expected topics ending in left/image_raw and '
-                             f'right/image_raw, found {sorted(reader.topics)}')
+                  if c.topic == f'{chosen}/{side}/image_raw'}
         for connection, received, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
             # Older bags name types without the /msg/ part (sensor_msgs/Image).
@@ -43,14 +81,14 @@ def raw_image_messages(path, zero_stamped=None):
         reader.close()
 
 
-def recorded_pair_info(path):
+def recorded_pair_info(path, namespace=''):
     """
     Return ``{stamp_ns: {key: value}}`` of a bag's ``pair_info`` topic (empty without one).
 
     The driver's ``pair_info`` (diagnostic_msgs/DiagnosticArray stamped with each pair's stamp)
     carries both cameras' acquisition stamps and the pair's skew: a bag whose images share the
     pair's stamp keeps the skew only there. Topics ending in ``pair_info`` of another type are
-    ignored.
+    ignored, and so are those of another namespace than the image pair's (``pair_namespace``).
     """
     from rosbags.typesys import get_typestore, Stores
 
@@ -60,7 +98,8 @@ def recorded_pair_info(path):
     reader = open_bag(path)
     out = {}
     try:
-        connections = [c for c in reader.connections if c.topic.endswith('pair_info') and
+        chosen = pair_namespace(path, reader.topics, namespace)
+        connections = [c for c in reader.connections if c.topic == f'{chosen}/pair_info' and
                        normalized_msgtype(c.msgtype) == 'diagnostic_msgs/msg/DiagnosticArray']
         if not connections:
             return out
@@ -74,12 +113,13 @@ def recorded_pair_info(path):
     return out
 
 
-def recorded_calibrations(path):
+def recorded_calibrations(path, namespace=''):
     """
     Return the left and right CameraCalibration of a bag's first camera_info messages.
 
-    Topics ending in ``left/camera_info`` and ``right/camera_info``; a ValueError names what
-    the bag has when one is missing (a bag of image_raw alone has no calibration).
+    The ``left/camera_info`` and ``right/camera_info`` beside the image pair
+    (``pair_namespace``); a ValueError names what the bag has when one is missing (a bag of
+    image_raw alone has no calibration).
     """
     from rosbags.typesys import get_typestore, Stores
 
@@ -91,8 +131,9 @@ def recorded_calibrations(path):
     found = {}
     topics = sorted(reader.topics)
     try:
+        chosen = pair_namespace(path, topics, namespace)
         wanted = {c.id: side for c in reader.connections for side in SIDES
-                  if c.topic.endswith(f'{side}/camera_info') and
+                  if c.topic == f'{chosen}/{side}/camera_info' and
                   normalized_msgtype(c.msgtype) == 'sensor_msgs/msg/CameraInfo'}
         for connection, _, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
@@ -111,15 +152,11 @@ def recorded_calibrations(path):
     return found['left'], found['right']
 
 
-def raw_pair_namespace(path):
-    """Return the namespace of a bag's ``left/image_raw`` topic (``/stereo`` for the suite's)."""
+def bag_pair_namespace(path, namespace=''):
+    """Return the namespace of a bag's image pair ('' for /; ``pair_namespace``)."""
     from st_stereo.bag_reading import open_bag
     reader = open_bag(pathlib.Path(path))
     try:
-        for connection in reader.connections:
-            if connection.topic.endswith('/left/image_raw'):
-                return connection.topic[:-len('/left/image_raw')] or '/'
+        return pair_namespace(path, reader.topics, namespace)
     finally:
         reader.close()
-    raise ValueError(f'{path}: no topic ending in left/image_raw (topics: '
-                     f'{sorted(reader.topics)})')

@@ -95,7 +95,7 @@ def driver_calibrations(value):
             driver_parameter(value('params_file'), 'bag_camera_info', value('namespace')):
         from st_stereo.bag_streams import recorded_calibrations
         try:
-            return list(recorded_calibrations(driver('bag')))
+            return list(recorded_calibrations(driver('bag'), driver('bag_namespace') or ''))
         except ValueError:          # no camera_info in the bag: the driver's URLs
             pass
     return [load_calibration(resolve_url(url)) for url in calibration_urls(value)]

@@ -725,3 +725,58 @@ def test_images_stamped_zero_are_paired_by_the_time_the_recorder_received_them(t
     assert driver.pairing.counters.skew_abs_max == pytest.approx(0.030, abs=1e-6)
     values = {kv.key: kv.value for kv in status.values}
     assert values["images stamped 0 (the bag's receive time used)"] == str(2 * pairs)
+
+
+def test_a_bag_of_two_rigs_is_replayed_one_namespace_at_a_time(tmp_path, capsys):
+    # Two rigs recorded into one bag: their frames were merged into one stream (pairs of one
+    # rig's left with the other's right). Now the namespace is chosen, or the bag refused.
+    from rclpy.qos import qos_profile_sensor_data
+    from rosbag2_layouts import Topic, write_bag
+    from sensor_msgs.msg import Image
+    from st_stereo.bag_streams import pair_namespace
+    from st_stereo.nodes.conversions import msg_to_image
+    start = 1_714_557_600.0
+    topics = []
+    for rig, frames, level, offset in (('rig1', 3, 8000, 0.0), ('rig2', 5, 9000, 0.05)):
+        stamps = [start + offset + 0.1136 * i for i in range(frames)]
+        for topic in _raw_topics(stamps, stamps):
+            for msg in topic.messages:
+                msg.data = image_to_msg(np.full((60, 80), level, np.uint16), msg.header).data
+            topics.append(Topic(topic.name.replace('/stereo/', f'/{rig}/stereo/'),
+                                topic.msgtype, topic.messages))
+    bag = tmp_path / 'rigs'
+    write_bag(bag, 9, 'mcap', topics)
+    with ros_nodes() as (context, _, _):
+        with pytest.raises(ValueError, match=r'image pairs under 2 namespaces \(/rig1/stereo, '
+                                             r'/rig2/stereo\): choose one \(bag_namespace'):
+            DriverNode(context=context, parameter_overrides=[
+                Parameter('source', value='bag'), Parameter('bag', value=str(bag))])
+    with pytest.raises(ValueError, match=r"no /rig3/left/image_raw .*bag_namespace 'rig3'\); "
+                                         r'image pairs under: /rig1/stereo, /rig2/stereo'):
+        pair_namespace(bag, [t.name for t in topics], 'rig3')
+    assert pair_namespace(bag, ['/left/image_raw', '/right/image_raw'], '/') == ''
+    assert pair_namespace(bag, ['/left/image_raw', '/right/image_raw']) == ''
+    levels = []
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('listener', context=context, namespace='stereo'))
+        listener.create_subscription(
+            Image, 'left/image_raw', lambda msg: levels.append(
+                int(np.median(msg_to_image(msg, 'mono16')))), qos_profile_sensor_data)
+        spin_for(executor, 0.5)
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+            Parameter('bag_namespace', value='/rig2/stereo/')]))
+        spin_until_finished(executor, driver, 30.0)
+        spin_for(executor, 0.5)
+    assert driver.published == 5 and levels == [9000] * 5
+    # calibrate (and rig-pose, the same reader) choose the same way.
+    from st_stereo.cli import main
+    target = ['--target', 'circles', '--rows', '5', '--cols', '7', '--spacing', '0.1',
+              '--out', str(tmp_path / 'calibration'), '--quiet']
+    assert main(['calibrate', '--bag', str(bag)] + target) == 2
+    assert 'image pairs under 2 namespaces' in capsys.readouterr().err
+    assert main(['calibrate', '--bag', str(bag), '--bag-namespace', '/rig2/stereo'] +
+                target) == 2
+    assert 'target never found in 5 pairs' in capsys.readouterr().err   # rig2's flat frames
+    from st_stereo.tools.calibrate import pairs_from_bag
+    assert len(list(pairs_from_bag(bag, 'rig1/stereo'))) == 3

@@ -20,9 +20,9 @@ from st_stereo.nodes.conversions import msg_to_image
 class BagImageStream:
     """Both cameras' raw images of a bag, pulled in bag order as each camera asks for one."""
 
-    def __init__(self, path):
+    def __init__(self, path, namespace=''):
         self.zero_stamped = dict.fromkeys(SIDES, 0)     # stamped 0: receive time used
-        self._messages = raw_image_messages(path, self.zero_stamped)
+        self._messages = raw_image_messages(path, self.zero_stamped, namespace)
         self.pending = {side: collections.deque() for side in SIDES}
         self.pulled = 0                    # messages read from the bag so far
         self.ended = False
@@ -109,14 +109,14 @@ class BagSide:
         self.stream.close()
 
 
-def open_bag_sides(path):
+def open_bag_sides(path, namespace=''):
     """
-    Open the left and right image_raw streams of a bag (topics ending in side/image_raw).
+    Open the left and right image_raw streams of a bag (``bag_streams.pair_namespace``).
 
     Only the first frame of each camera is read here (for the common start): the rest is
     read as the driver asks for it.
     """
-    stream = BagImageStream(path)
+    stream = BagImageStream(path, namespace)
     firsts = [item[0] * 1e-9 for item in (stream.peek(side) for side in SIDES) if item]
     start = min(firsts) if firsts else 0.0
     return [BagSide(side, stream, start) for side in SIDES]
@@ -134,8 +134,8 @@ class RecordedPairInfo:
 
     TOLERANCE_NS = 1000
 
-    def __init__(self, path):
-        self.by_stamp = recorded_pair_info(path)
+    def __init__(self, path, namespace=''):
+        self.by_stamp = recorded_pair_info(path, namespace)
         self.stamps = sorted(self.by_stamp)
         self.counts = {'pairs with recorded pair_info': 0,
                        'pairs without recorded pair_info (skew of the image stamps)': 0,

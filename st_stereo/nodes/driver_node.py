@@ -218,19 +218,20 @@ class DriverNode(Node):
             for note in self.bag_notes:
                 self.get_logger().warning(note)
             # Images of a recorded pair share its stamp: the skew is only in its pair_info.
-            self.recorded_pair_info = RecordedPairInfo(self._value('bag'))
-            sides = open_bag_sides(self._value('bag'))
+            namespace = self._value('bag_namespace')
+            self.recorded_pair_info = RecordedPairInfo(self._value('bag'), namespace)
+            sides = open_bag_sides(self._value('bag'), namespace)
             if self._value('bag_camera_info'):
-                self._use_recorded_calibrations(self._value('bag'))
+                self._use_recorded_calibrations(self._value('bag'), namespace)
             return sides, [None, None]
         raise ValueError(f'source: expected sim, capture, spi, purethermal or bag, got '
                          f'{self.source!r}')
 
-    def _use_recorded_calibrations(self, bag):
+    def _use_recorded_calibrations(self, bag, namespace):
         """Publish the bag's own camera_info (its first of each camera), if it has them."""
         from st_stereo.bag_streams import recorded_calibrations
         try:
-            recorded = recorded_calibrations(bag)
+            recorded = recorded_calibrations(bag, namespace)
         except ValueError as error:      # no camera_info in the bag (or not a usable one)
             self.get_logger().info(f'{error}: publishing the camera_info_url calibrations '
                                    f'({", ".join(self.info_urls)})')

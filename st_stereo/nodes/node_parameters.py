@@ -28,6 +28,10 @@ DRIVER_PARAMETERS = [
                   'USB boards) or bag (the raw image topics of a rosbag2)'),
     NodeParameter('bag', '', 'bag: rosbag2 directory holding left/image_raw and '
                   'right/image_raw'),
+    NodeParameter('bag_namespace', '', 'bag: the namespace of the image pair to replay, '
+                  'e.g. /rig2/stereo (its left/image_raw, right/image_raw, camera_info and '
+                  "pair_info); '': the bag's one namespace with both image topics (a bag of "
+                  "several rigs is refused, naming them); '/': the root namespace"),
     NodeParameter('bag_camera_info', True, "bag: publish the bag's own calibration (its first "
                   'left/camera_info and right/camera_info) when it has one, else the '
                   "camera_info_url's (logged); false: always the camera_info_url's"),

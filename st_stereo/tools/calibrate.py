@@ -53,11 +53,15 @@ def pairs_from_directory(directory):
         yield str(a), read_thermal_image(a), read_thermal_image(b)
 
 
-def bag_frames(path):
+BAG_NAMESPACE_HELP = ('a bag of several rigs: the namespace of the image pair to read, e.g. '
+                      '/rig2/stereo (default: the bag must hold one)')
+
+
+def bag_frames(path, namespace=''):
     """Every raw left and right image of a rosbag2: ``{side: {stamp_ns: pixels}}``."""
     frames = {'left': {}, 'right': {}}
     try:
-        for side, stamp, msg in raw_image_messages(path):
+        for side, stamp, msg in raw_image_messages(path, namespace=namespace):
             if msg.encoding not in COUNT_ENCODINGS + ('mono8',):
                 raise CalibrationInputError(f'{path}: {side}/image_raw: encoding '
                                             f'{msg.encoding!r}, expected mono16, 16UC1 or '
@@ -73,10 +77,10 @@ def bag_frames(path):
     return frames
 
 
-def pairs_from_bag(path):
+def pairs_from_bag(path, namespace=''):
     """Pairs of a rosbag2's raw image topics with identical stamps (none: an error says why)."""
     from st_stereo.bag_reading import bag_notes
-    frames = bag_frames(path)
+    frames = bag_frames(path, namespace)
     for note in bag_notes(path):        # a recording that did not end: read as far as it goes
         print(f'calibrate: {note}', file=sys.stderr)
     stamps = sorted(set(frames['left']) & set(frames['right']))
@@ -117,7 +121,7 @@ def input_pairs(args, bag_pairs=pairs_from_bag):
     if args.images:
         return pairs_from_directory(args.images)
     if args.bag:
-        return bag_pairs(args.bag)
+        return bag_pairs(args.bag, args.bag_namespace)
     return pairs_from_captures(*args.capture)
 
 
@@ -325,6 +329,7 @@ def add_parser(sub):
     p = sub.add_parser('calibrate', help='stereo calibration from pairs of a heated target')
     p.add_argument('--images', help='directory of pairs (left*/right* or left/ and right/)')
     p.add_argument('--bag', help='rosbag2 with */left/image_raw and */right/image_raw')
+    p.add_argument('--bag-namespace', default='', help=BAG_NAMESPACE_HELP)
     p.add_argument('--capture', nargs=2, metavar=('LEFT', 'RIGHT'),
                    help='two raw Lepton captures')
     p.add_argument('--target', required=True, choices=('circles', 'acircles', 'chessboard'),

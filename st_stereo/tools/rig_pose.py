@@ -24,7 +24,7 @@ from st_stereo.core.calibration.targets import CalibrationTarget, find_target, \
 from st_stereo.core.floor_pose import check_distortion_model, combine_views, floor_view, \
     FloorPoseError, MIN_TILT_FOR_ROLL_DEG
 from st_stereo.core.rig_pose import load_rig_pose, POSE_FIELDS, rig_pose_yaml, RigPose
-from st_stereo.tools.calibrate import bag_frames, input_pairs
+from st_stereo.tools.calibrate import bag_frames, BAG_NAMESPACE_HELP, input_pairs
 
 
 # The target's size as the baseline measures it may differ from its description by this
@@ -98,7 +98,7 @@ class FloorTargetViews:
         return f'{reason} in {counts[reason]} images: {hints[reason]}'
 
 
-def nearest_stamp_pairs(path, max_delta_s, counts):
+def nearest_stamp_pairs(path, max_delta_s, counts, namespace=''):
     """
     Pairs of a rosbag2's raw images: each left image with the nearest right one in time.
 
@@ -107,7 +107,7 @@ def nearest_stamp_pairs(path, max_delta_s, counts):
     ``max_delta_s`` is counted in ``counts['unpaired_left']``, right images never used in
     ``counts['unused_right']``.
     """
-    frames = bag_frames(path)
+    frames = bag_frames(path, namespace)
     rights = sorted(frames['right'])
     used = set()
     for stamp in sorted(frames['left']):
@@ -262,8 +262,8 @@ def main(args):
     from tqdm import tqdm
     target = CalibrationTarget(args.target, args.rows, args.cols, args.spacing)
     bag_counts = {'unpaired_left': 0, 'unused_right': 0, 'images': (0, 0)}
-    pairs = input_pairs(args, lambda bag: nearest_stamp_pairs(bag, args.max_pair_delta,
-                                                              bag_counts))
+    pairs = input_pairs(args, lambda bag, namespace: nearest_stamp_pairs(
+        bag, args.max_pair_delta, bag_counts, namespace))
     for name, value in (('--max-rms', args.max_rms), ('--max-scale-error', args.max_scale_error),
                         ('--max-pair-delta', args.max_pair_delta)):
         if not value > 0:
@@ -321,6 +321,7 @@ def add_parser(sub):
                        'lying on the floor')
     p.add_argument('--images', help='directory of pairs (left*/right* or left/ and right/)')
     p.add_argument('--bag', help='rosbag2 with */left/image_raw and */right/image_raw')
+    p.add_argument('--bag-namespace', default='', help=BAG_NAMESPACE_HELP)
     p.add_argument('--capture', nargs=2, metavar=('LEFT', 'RIGHT'),
                    help='two raw Lepton captures')
     p.add_argument('--calibration', help='directory with the stereo calibration (left.yaml, '
