@@ -277,7 +277,15 @@ temporal_tolerance_px=0.3` (2026-12-06) loses one of two_people's two people fro
 the check takes one or two of them, below what the people stage needs for a detection;
 open_office recall 63.2 -> 59.0 % (precision 95.5 -> 100 %); every other row the same
 recall, precision and id switches. The people stage needs more than a handful of points per
-person before the points can be thinned like this.
+person before the points can be thinned like this. Measured and not kept (2026-12-08): checking
+only the static matches below a confidence (0.6 or 0.5; the floor's ambiguous matches, e.g. a
+static feature of sit_down's floor whose disparity jumped between -1.8 and +2.3 px from pair to
+pair, have confidences of 0.35-0.55, against a median of 0.74 for correct floor points):
+`st-stereo eval points --stride 4 --no-recording --set temporal_tolerance_px=0.3 --set
+temporal_max_confidence=0.6` gave 3.3 / 0.5 / 1.3 % outliers on walk_across / two_people /
+sit_down (3.3 / 0.4 / 1.1 % checking every static match, 3.9 / 0.9 / 2.3 % without the check),
+but `st-stereo eval people --sequences two_people` with it still lost the standing person:
+recall 98.6 -> 84.3 % (its few matches are of low confidence too).
 
 **Where the point is placed** (``point_location``, since 2026-12-06,
 ``st_stereo.core.point_location``; the tables above use the default, ``structure`` since
