@@ -780,3 +780,29 @@ def test_a_bag_of_two_rigs_is_replayed_one_namespace_at_a_time(tmp_path, capsys)
     assert 'target never found in 5 pairs' in capsys.readouterr().err   # rig2's flat frames
     from st_stereo.tools.calibrate import pairs_from_bag
     assert len(list(pairs_from_bag(bag, 'rig1/stereo'))) == 3
+
+
+def test_a_bag_replays_at_replay_rate_times_its_recorded_pace(tmp_path):
+    # Slower than recorded (a board that cannot keep up): half the pace, a lower bound.
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+    bag = _flat_bag(tmp_path, 'mono16', frames=10)       # 1.02 s of stamps
+    arrivals = []
+    with ros_nodes() as (context, executor, add):
+        listener = add(Node('listener', context=context, namespace='stereo'))
+        listener.create_subscription(Image, 'left/image_raw',
+                                     lambda msg: arrivals.append(time.monotonic()),
+                                     qos_profile_sensor_data)
+        spin_for(executor, 0.5)
+        driver = add(DriverNode(context=context, parameter_overrides=[
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+            Parameter('replay_rate', value=0.5)]))
+        spin_until_finished(executor, driver, 30.0)
+        spin_for(executor, 0.5)
+    assert driver.published == 10 and len(arrivals) == 10
+    assert arrivals[-1] - arrivals[0] >= 9 * 0.1136 / 0.5 - 0.05
+    with ros_nodes() as (context, _, _):
+        with pytest.raises(ValueError, match=r'replay_rate: expected a speed factor >= 0'):
+            DriverNode(context=context, parameter_overrides=[
+                Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+                Parameter('replay_rate', value=-1.0)])

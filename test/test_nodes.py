@@ -5,6 +5,7 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a per-run ROS_DOMAIN_ID come from .c
 """
 
 import os
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
@@ -393,7 +394,8 @@ def test_driver_flags_every_pair_whose_image_an_ffc_moved(ros, tmp_path, monkeyp
     context, executor, add = ros
     driver = add(DriverNode(context=context, parameter_overrides=[
         Parameter('source', value='capture'), Parameter('left_capture', value=str(paths[0])),
-        Parameter('right_capture', value=str(paths[1]))]))
+        Parameter('right_capture', value=str(paths[1])),
+        Parameter('replay_rate', value=0.0)]))     # as fast as read: 20 s of capture
     spin_until(executor, driver.finished.is_set, 90.0)
 
     def stamp(msg):
@@ -781,3 +783,32 @@ def test_counts_above_14_bits_are_rectified_and_said(ros):
                                              'raw counts (a radiometric Lepton in TLinear')
     assert rectifier.counts['rectified'] == 2 and rectifier.counts['pairs_above_14_bits'] == 1
     assert status.level == DiagnosticStatus.OK         # the state is the latest pair's
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize('rate', [1.0, 2.0])
+def test_a_capture_replays_at_its_recorded_pace_times_replay_rate(ros, tmp_path, rate):
+    # Captures were replayed as fast as they were decoded (a 3 s capture in well under a
+    # second, a consumer with keep_latest then dropping most pairs). Pacing can only make
+    # the replay slower than its recorded span: the check is a lower bound.
+    from st_stereo.lepton.capture import decode_capture
+    from st_stereo.lepton.cli import simulate_capture
+    paths = [tmp_path / 'left.bin', tmp_path / 'right.bin']
+    for path, seed in zip(paths, (1, 2)):
+        simulate_capture(path, 3.0, 'footer', None, seed=seed)
+    frames = decode_capture(paths[0])[0]
+    span = frames[-1].stamp - frames[0].stamp
+    assert span > 2.5
+    context, executor, add = ros
+    arrivals = []
+    listener = add(Node('images', context=context, namespace='stereo'))
+    listener.create_subscription(Image, 'left/image_raw',
+                                 lambda msg: arrivals.append(time.monotonic()), 50)
+    driver = add(DriverNode(context=context, parameter_overrides=[
+        Parameter('source', value='capture'), Parameter('left_capture', value=str(paths[0])),
+        Parameter('right_capture', value=str(paths[1])), Parameter('replay_rate', value=rate)]))
+    spin_until(executor, driver.finished.is_set, 60.0)
+    spin_until(executor, lambda: False, 0.5)
+    assert len(arrivals) >= 0.8 * len(frames) and driver.published == len(arrivals)
+    # The last pair is released once the wall clock reaches its recorded time / rate.
+    assert arrivals[-1] - arrivals[0] >= 0.9 * span / rate - 2 * 0.1136

@@ -75,6 +75,7 @@ class BagSide:
         # recorded a second later must wait that second, not start with the other one.
         self.start = start
         self.last_problem = ''             # why the last refused frame was refused
+        self.last_time = 0.0               # time of the frame read last (from the start)
 
     def next_time(self):
         """Time of the next frame relative to the first (for pacing and interleaving)."""
@@ -87,6 +88,7 @@ class BagSide:
         if item is None:
             raise EndOfStream()
         stamp_ns, msg = item
+        self.last_time = stamp_ns * 1e-9 - self.start      # for pacing: this frame's moment
         index = self.read
         self.read += 1
         self.counters.frames_completed += 1

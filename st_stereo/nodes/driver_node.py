@@ -75,6 +75,8 @@ class DriverNode(Node):
         self.duration = diagnostics.non_negative_number(
             'duration', value('duration'), 'seconds >= 0 (0: until the source ends)')
         self.replay_wait = diagnostics.non_negative_number('replay_wait', value('replay_wait'))
+        self.replay_rate = diagnostics.non_negative_number(
+            'replay_rate', value('replay_rate'), 'a speed factor >= 0 (0: as fast as read)')
         self.replay_subscribers = value('replay_subscribers')
         self.exit_at_end = bool(value('exit_at_end'))
         if isinstance(self.replay_subscribers, bool) or \
@@ -365,11 +367,30 @@ class DriverNode(Node):
                 return
             self._stop.wait(0.02)
 
+    def _replay_pace(self):
+        """
+        Return ``(speed, origin)``: frames are released at ``speed`` x the pace of their times.
+
+        The simulated cameras run at real time; a bag and a capture with recorded read times
+        at ``replay_rate`` times their recorded pace from their first frame (``origin``); 0
+        (``replay_rate`` 0, or a capture of plain SPI bytes, whose times are only its byte
+        count at the SPI clock): as fast as the frames are read.
+        """
+        if self.source == 'sim':
+            return 1.0, 0.0
+        if self.source == 'bag':
+            return self.replay_rate, 0.0     # its sides' times count from its first frame
+        if self.source == 'capture' and self.replay_rate and \
+                all(getattr(reader.transport, 'times', None) is not None
+                    for reader in self.readers):
+            return self.replay_rate, min(reader.transport.now() for reader in self.readers)
+        return 0.0, 0.0
+
     def _run(self):
         self._wait_for_subscribers()
         clock_start = self.get_clock().now().nanoseconds * 1e-9
         wall_start = time.monotonic()
-        simulated = self.source in ('sim', 'bag')     # paced at real time
+        speed, origin = self._replay_pace()
         base = None
         ended = 'end of the source'
         try:
@@ -378,10 +399,13 @@ class DriverNode(Node):
                 side = min(range(2), key=lambda i: self.readers[i].transport.now())
                 reader = self.readers[side]
                 frame = reader.read_frame(timeout_s=1.0)
-                if simulated:
-                    # Pace the simulated cameras at real time: a frame is released when the
-                    # wall clock reaches the simulated moment its last packet was read.
-                    lag = reader.transport.now() - (time.monotonic() - wall_start)
+                if speed:
+                    # A frame is released when the wall clock reaches the (simulated or
+                    # recorded) moment its last packet was read, at ``speed`` times that pace;
+                    # a bag's frame at its stamp (its transport's time is the next frame's).
+                    moment = reader.last_time if self.source == 'bag' else \
+                        reader.transport.now()
+                    lag = (moment - origin) / speed - (time.monotonic() - wall_start)
                     if 0 < lag < float('inf'):       # inf: that side's recording has ended
                         time.sleep(lag)
                 if frame is None:

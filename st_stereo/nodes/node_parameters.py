@@ -40,6 +40,10 @@ DRIVER_PARAMETERS = [
                   'replay_subscribers subscribers (a consumer started beside the driver is '
                   'discovered within a second or so, and what is published before is lost); '
                   'then start anyway, logging the topics still without; 0: start at once'),
+    NodeParameter('replay_rate', 1.0, 'bag, capture: replay speed, times the recorded pace '
+                  '(2: twice as fast); 0: as fast as the frames are read (a slow consumer with '
+                  'keep_latest then drops pairs, counted). A capture of plain SPI bytes has no '
+                  'recorded times and is never paced'),
     NodeParameter('exit_at_end', False, 'bag, capture: end the process when the source ends '
                   '(after publishing the last pair and the final status; exit code 0, or 1 '
                   'when the source gave no pair), for scripted replays and launch files with '
