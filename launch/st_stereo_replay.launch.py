@@ -43,10 +43,10 @@ def launch_setup(value):
             '--delay', str(launch_support.number(value('start_delay'), 'start_delay'))] + \
         (['--clock'] if use_sim_time else [])
     # The bag's raw pair into this launch's namespace (a bag recorded under another one).
-    recorded = bag_pair_namespace(value('bag'), value('bag_namespace'))
+    recorded = bag_pair_namespace(value('bag'), value('bag_namespace'))    # '/stereo/'
     target = '/' + value('namespace').strip('/')
-    remappings = [(f'{recorded}/{topic}', f'{target}/{topic}') for topic in RAW_PAIR_TOPICS] \
-        if recorded != target else []
+    remappings = [(f'{recorded}{topic}', f'{target}/{topic}') for topic in RAW_PAIR_TOPICS] \
+        if recorded != f'{target}/' else []
     return [Node(package='st_stereo', executable='bag_play', name='bag_play', arguments=play,
                  remappings=remappings, output='screen')] + \
         launch_support.stereo_nodes(value, bag_calibrations)

@@ -29,6 +29,7 @@ One place for ``bag_play``, the driver's ``source:=bag`` and ``st-stereo calibra
 import importlib
 import pathlib
 import re
+import struct
 
 
 _NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')     # a package, msg/srv/action, or a type
@@ -44,16 +45,20 @@ def open_bag(path):
     if not path.exists():
         raise FileNotFoundError(f'{path}: no such bag')
     notes = []
-    if path.is_dir() and not (path / 'metadata.yaml').exists():
+    if path.is_dir() and not _has_metadata(path):
         path = _lone_storage_file(path)
-        notes.append(f'{path.parent}: no metadata.yaml (a recording that did not end, or a '
-                     f'copy without it): reading {path.name} alone')
+        notes.append(f'{path.parent}: no metadata.yaml, or an empty one (a recording that '
+                     f'did not end, or a copy without it): reading {path.name} alone')
+    path, logged = _with_write_ahead_logs_applied(path)
+    notes += logged
     metadata = path / 'metadata.yaml' if path.is_dir() else path
     try:
         reader = _reader_class()(path)
         reader.open()
     except Exception as error:      # noqa: B902 - rosbags and its YAML parser raise many kinds
-        raise BagError(f'{metadata}: {_one_line(error)}') from None
+        hint = ' (a recording that did not end: reading its complete records needs rosbags ' \
+            '0.11.6 or later)' if 'end magic' in str(error) else ''
+        raise BagError(f'{metadata}: {_one_line(error)}{hint}') from None
     storages = getattr(reader.storage, 'storages', None) or [reader.storage]
     notes += [storage.cut_short_note for storage in storages
               if getattr(storage, 'cut_short_note', None)]
@@ -83,19 +88,85 @@ def bag_notes(path):
 
 
 STORAGE_SUFFIXES = ('.mcap', '.db3')
+_ZSTD_MAGIC = b'\x28\xb5\x2f\xfd'
+
+
+_WAL_COPIES = {}        # (bag, its databases' and logs' sizes and times) -> applied copy
+
+
+def _with_write_ahead_logs_applied(path):
+    """
+    Return ``(path to read, notes)``: a copy with each database's write-ahead log applied.
+
+    rosbag2's ``resilient`` sqlite3 preset writes in WAL mode; a recording that did not end
+    leaves messages in ``<file>.db3-wal`` that the database itself does not hold yet, and
+    rosbags opens databases immutable, which ignores the log: they were lost without a word.
+    The bag (a directory, or one .db3 file) is copied to a temporary directory, kept until
+    the process ends and shared by every opening of the same files, where SQLite applies the
+    log; the user's files are not written.
+    """
+    import atexit
+    import shutil
+    import sqlite3
+    import tempfile
+    databases = sorted(path.glob('*.db3')) if path.is_dir() else \
+        [path] if path.suffix == '.db3' else []
+    logged = [db for db in databases if _nonempty(db.with_name(db.name + '-wal'))]
+    if not logged:
+        return path, []
+    key = (str(path.resolve()),) + tuple(
+        (f.name, f.stat().st_size, f.stat().st_mtime_ns) for db in logged
+        for f in (db, db.with_name(db.name + '-wal')))
+    if key not in _WAL_COPIES:
+        folder = pathlib.Path(tempfile.mkdtemp(prefix='st_stereo_bag_'))
+        atexit.register(shutil.rmtree, folder, True)
+        copy = folder / path.name
+        if path.is_dir():
+            shutil.copytree(path, copy, ignore=shutil.ignore_patterns('*-shm'))
+        else:
+            shutil.copy2(path, copy)
+            shutil.copy2(path.with_name(path.name + '-wal'), folder / (path.name + '-wal'))
+        for db in logged:
+            target = copy / db.name if path.is_dir() else copy
+            connection = sqlite3.connect(target)
+            try:
+                connection.execute('PRAGMA wal_checkpoint(TRUNCATE)')
+            finally:
+                connection.close()
+        _WAL_COPIES[key] = copy
+    notes = [f"{db}: a write-ahead log (rosbag2's resilient preset, a recording that did not "
+             f'end) holds messages the database does not yet: read from a copy with it applied'
+             for db in logged]
+    return _WAL_COPIES[key], notes
+
+
+def _nonempty(file):
+    return file.exists() and file.stat().st_size > 0
+
+
+def _has_metadata(directory):
+    # rosbag2 writes metadata.yaml when the recording ends: a crash while writing it can
+    # leave it empty, which is no more than a missing one.
+    metadata = directory / 'metadata.yaml'
+    return metadata.exists() and metadata.stat().st_size > 0
 
 
 def _lone_storage_file(directory):
     """Return the one storage file of a bag directory without metadata.yaml (else BagError)."""
     files = sorted(p for p in directory.iterdir() if p.suffix in STORAGE_SUFFIXES)
-    if len(files) == 1:
+    # rosbag2's file compression compresses each file of a split recording as it is closed.
+    compressed = sorted(p for p in directory.iterdir()
+                        if any(p.name.endswith(f'{suffix}.zstd') for suffix in STORAGE_SUFFIXES))
+    if len(files) == 1 and not compressed:
         return files[0]
-    if not files:
+    if not files and not compressed:
         raise BagError(f'{directory}: no metadata.yaml and no storage file (.mcap, .db3): '
                        f'not a rosbag2 directory')
-    raise BagError(f'{directory}: no metadata.yaml and {len(files)} storage files '
-                   f'({", ".join(p.name for p in files)}): `ros2 bag reindex {directory}` '
-                   f'writes it; or give one of the files')
+    names = ', '.join(p.name for p in files + compressed)
+    unzip = ' (decompress the .zstd files first: zstd -d)' if compressed else ''
+    raise BagError(f'{directory}: no metadata.yaml and {len(files) + len(compressed)} storage '
+                   f'files ({names}): `ros2 bag reindex {directory}` writes it{unzip}; or give '
+                   f'one of the files')
 
 
 # MCAP opcodes (mcap.dev/spec), to name the record a file was cut in.
@@ -107,15 +178,64 @@ _MCAP_RECORDS = {0x01: 'header', 0x02: 'footer', 0x03: 'schema', 0x04: 'channel'
 _MCAP_DATA_END = 0x0F
 
 
-def complete_records_end(stream, start, size):
+def data_extent(stream, size, block=1 << 16):
+    """
+    Return the offset after the last non-zero byte of a ``size``-byte file.
+
+    A file system can leave the blocks a crash did not write as zeros, up to the file's
+    recorded size: what lies in that run of zeros was never written.
+    """
+    end = size
+    while end > 0:
+        start = max(0, end - block)
+        stream.seek(start)
+        data = stream.read(end - start).rstrip(b'\0')
+        if data:
+            return start + len(data)
+        end = start
+    return 0
+
+
+def _whole_chunk(record, decompress):
+    """Return whether a chunk record's content decompresses, checks and holds whole records."""
+    try:
+        (_, _, size, crc), offset = struct.unpack_from('<QQQI', record, 0), 28
+        (length,) = struct.unpack_from('<I', record, offset)
+        compression = record[offset + 4:offset + 4 + length].decode()
+        offset += 4 + length
+        (compressed,) = struct.unpack_from('<Q', record, offset)
+        data = record[offset + 8:offset + 8 + compressed]
+        if len(data) != compressed:
+            return False
+        raw = decompress(bytes(data), compression, size, crc)
+    except Exception:               # noqa: B902 - any failure: not a chunk that can be read
+        return False
+    position = 0
+    while position < len(raw):
+        if position + 9 > len(raw):
+            return False
+        opcode, length = raw[position], int.from_bytes(raw[position + 1:position + 9], 'little')
+        if opcode not in (0x03, 0x04, 0x05) or (opcode == 0x05 and length < 22) or \
+                position + 9 + length > len(raw):
+            return False
+        position += 9 + length
+    return True
+
+
+def complete_records_end(stream, start, size, decompress=None):
     """
     Return ``(end, cut)`` of an MCAP data section read from ``start`` of a ``size``-byte file.
 
     ``end``: the offset after the last complete top-level record (records are an opcode, a
-    little-endian uint64 length, then that many bytes), before a ``data end`` record, or
-    before zero bytes (a file system's preallocated tail). ``cut``: the name of the record
-    left incomplete at ``end``, or None when the data section ends there.
+    little-endian uint64 length, then that many bytes), before a ``data end`` record, before
+    the run of zeros a file system may leave at the end (``data_extent``; a record reaching
+    into it was not written whole), or before a record that cannot be whole: an unknown
+    opcode, a message record shorter than its fixed fields, or (with ``decompress``, rosbags'
+    chunk decoder) a chunk that does not decompress, fails its checksum or holds a broken
+    record. ``cut``: the name of the record left out at ``end``, or None when the data
+    section ends there.
     """
+    size = min(size, data_extent(stream, size))
     position = start
     while position + 9 <= size:
         stream.seek(position)
@@ -123,8 +243,14 @@ def complete_records_end(stream, start, size):
         opcode, length = head[0], int.from_bytes(head[1:9], 'little')
         if opcode == 0 or opcode == _MCAP_DATA_END:
             return position, None
-        if position + 9 + length > size:
-            return position, _MCAP_RECORDS.get(opcode, f'unknown record 0x{opcode:02x}')
+        name = _MCAP_RECORDS.get(opcode)
+        if name is None or position + 9 + length > size:
+            return position, name or f'unknown record 0x{opcode:02x}'
+        if opcode == 0x05 and length < 22:
+            return position, 'message'
+        if opcode == 0x06 and decompress is not None and \
+                not _whole_chunk(stream.read(length), decompress):
+            return position, 'chunk'
         position += 9 + length
     return position, None if position == size else 'record header'
 
@@ -180,6 +306,7 @@ def _reader_class():
     from rosbags.rosbag2 import Reader
     from rosbags.rosbag2.errors import ReaderError
     from rosbags.rosbag2.reader import DirectoryReader
+    from rosbags.rosbag2 import storage_mcap
     from rosbags.rosbag2.storage_mcap import McapReader
     from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
@@ -208,7 +335,8 @@ def _reader_class():
             # No footer: read the complete records of the data section, in file order (the
             # summary with the chunk index is written last, so it is gone too).
             size = self.bio.seek(0, 2)
-            self.data_end, cut = complete_records_end(self.bio, self.data_start, size)
+            self.data_end, cut = complete_records_end(self.bio, self.data_start, size,
+                                                      storage_mcap.decompress)
             self.meta_scan()
             counts = self.statistics.channel_message_counts
             self.connections = [c._replace(msgcount=counts.get(c.id, 0))
@@ -226,9 +354,11 @@ def _reader_class():
                 f'short): {count} messages read from its complete records{lost}')
 
         def messages(self, *args, **kwargs):
-            # Without a chunk index rosbags scans, but refuses messages out of time order;
-            # rosbag2's fallback scan yields them in file order, and so does this.
-            if self.cut_short_note is None:
+            # Without a chunk index (a file cut short, or written unchunked: rosbag2's
+            # fastwrite preset) rosbags scans, but refuses messages out of time order, which
+            # a recorder writing in callback order produces; rosbag2's reader yields them in
+            # file order, and so does this.
+            if self.chunks:
                 yield from super().messages(*args, **kwargs)
                 return
             yield from self.messages_scan(*args, **kwargs)
@@ -289,9 +419,18 @@ def bag_messages(reader, connections=None):
     decompressed. Readers of a single storage file are read as rosbags does.
     """
     wanted = list(connections) if connections is not None else list(reader.connections)
+    if not wanted:                  # rosbags reads an empty selection as every connection
+        return
     storages = getattr(reader.storage, 'storages', None)
     if storages is None:
-        yield from reader.messages(connections=wanted)
+        # A storage file read alone (no metadata.yaml) does not say whether rosbag2
+        # compressed each message: a zstd frame is not CDR (which starts 00 00 or 00 01).
+        decompress = None
+        for connection, timestamp, data in reader.messages(connections=wanted):
+            if bytes(data[:4]) == _ZSTD_MAGIC:
+                decompress = decompress or _zstd_decompress()
+                data = decompress(bytes(data))
+            yield connection, timestamp, data
         return
     decompress = _zstd_decompress() if reader.compression_mode == 'message' else None
     for storage in storages:

@@ -5,42 +5,47 @@ import pathlib
 SIDES = ('left', 'right')
 
 
-def image_pair_namespaces(topics):
-    """Return the namespaces under which ``topics`` hold both left/ and right/image_raw."""
-    found = [{topic[:-len(f'/{side}/image_raw')] for topic in topics
-              if topic.endswith(f'/{side}/image_raw')} for side in SIDES]
+def image_pair_prefixes(topics):
+    """
+    Return the prefixes P of ``topics`` holding both P + left/image_raw and P + right/image_raw.
+
+    ``/stereo/`` for the suite's own topics, ``/`` for the root namespace, ``/cam_`` for
+    ``/cam_left/image_raw`` and ``/cam_right/image_raw`` (any topic ending in left/image_raw
+    was read as a camera before namespaces were told apart).
+    """
+    found = [{topic[:-len(f'{side}/image_raw')] for topic in topics
+              if topic.endswith(f'{side}/image_raw')} for side in SIDES]
     return sorted(found[0] & found[1])
-
-
-def _shown(namespace):
-    return namespace or '/'
 
 
 def pair_namespace(path, topics, namespace=''):
     """
-    Return the namespace of the image pair to read from a bag with ``topics`` ('' for /).
+    Return the prefix of the image pair to read from a bag with ``topics`` (see above).
 
-    ``namespace`` (the driver's ``bag_namespace``): '' takes the bag's one namespace with both
-    left/image_raw and right/image_raw; a bag of several rigs (``/rig1/stereo``, ``/rig2/
-    stereo``) then raises a ValueError naming them (their frames were merged before); '/'
-    is the root namespace. A ValueError names what the bag has when nothing matches.
+    The pair's topics are the prefix + ``left/image_raw``, ``right/image_raw``,
+    ``left/camera_info``, ``right/camera_info`` and ``pair_info``. ``namespace`` (the driver's
+    ``bag_namespace``): '' takes the bag's one prefix; a bag of several rigs (``/rig1/
+    stereo/``, ``/rig2/stereo/``) then raises a ValueError naming them (their frames were
+    merged before); ``/rig2/stereo`` (slashes optional) chooses one, ``/`` the root namespace,
+    and a prefix as listed (``/cam_``) itself. A ValueError names what the bag has when
+    nothing matches.
     """
-    namespaces = image_pair_namespaces(topics)
+    prefixes = image_pair_prefixes(topics)
     if namespace:
-        wanted = '/' + namespace.strip('/') if namespace.strip('/') else ''
-        if wanted in namespaces:
-            return wanted
-        raise ValueError(f'{path}: no {wanted}/left/image_raw and {wanted}/right/image_raw '
-                         f'(bag_namespace {namespace!r}); image pairs under: '
-                         f'{", ".join(map(_shown, namespaces)) or "none"}; topics: '
+        stripped = namespace.strip('/')
+        for wanted in (namespace, f'/{stripped}/' if stripped else '/'):
+            if wanted in prefixes:
+                return wanted
+        raise ValueError(f'{path}: no image pair under {namespace!r} (bag_namespace); image '
+                         f'pairs under: {", ".join(prefixes) or "none"}; topics: '
                          f'{sorted(topics)}')
-    if len(namespaces) == 1:
-        return namespaces[0]
-    if not namespaces:
+    if len(prefixes) == 1:
+        return prefixes[0]
+    if not prefixes:
         raise ValueError(f'{path}: expected topics ending in left/image_raw and '
                          f'right/image_raw, found {sorted(topics)}')
-    raise ValueError(f'{path}: image pairs under {len(namespaces)} namespaces '
-                     f'({", ".join(map(_shown, namespaces))}): choose one (bag_namespace; '
+    raise ValueError(f'{path}: image pairs under {len(prefixes)} namespaces '
+                     f'({", ".join(prefixes)}): choose one (bag_namespace; '
                      f'--bag-namespace of calibrate and rig-pose)')
 
 
@@ -65,7 +70,7 @@ def raw_image_messages(path, zero_stamped=None, namespace=''):
     try:
         chosen = pair_namespace(path, reader.topics, namespace)
         wanted = {c.id: side for c in reader.connections for side in SIDES
-                  if c.topic == f'{chosen}/{side}/image_raw'}
+                  if c.topic == f'{chosen}{side}/image_raw'}
         for connection, received, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
             # Older bags name types without the /msg/ part (sensor_msgs/Image).
@@ -99,7 +104,7 @@ def recorded_pair_info(path, namespace=''):
     out = {}
     try:
         chosen = pair_namespace(path, reader.topics, namespace)
-        connections = [c for c in reader.connections if c.topic == f'{chosen}/pair_info' and
+        connections = [c for c in reader.connections if c.topic == f'{chosen}pair_info' and
                        normalized_msgtype(c.msgtype) == 'diagnostic_msgs/msg/DiagnosticArray']
         if not connections:
             return out
@@ -133,7 +138,7 @@ def recorded_calibrations(path, namespace=''):
     try:
         chosen = pair_namespace(path, topics, namespace)
         wanted = {c.id: side for c in reader.connections for side in SIDES
-                  if c.topic == f'{chosen}/{side}/camera_info' and
+                  if c.topic == f'{chosen}{side}/camera_info' and
                   normalized_msgtype(c.msgtype) == 'sensor_msgs/msg/CameraInfo'}
         for connection, _, data in bag_messages(
                 reader, [c for c in reader.connections if c.id in wanted]):
@@ -153,7 +158,7 @@ def recorded_calibrations(path, namespace=''):
 
 
 def bag_pair_namespace(path, namespace=''):
-    """Return the namespace of a bag's image pair ('' for /; ``pair_namespace``)."""
+    """Return the topic prefix of a bag's image pair (``pair_namespace``)."""
     from st_stereo.bag_reading import open_bag
     reader = open_bag(pathlib.Path(path))
     try:

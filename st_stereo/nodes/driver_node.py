@@ -598,7 +598,7 @@ class DriverNode(Node):
             values['replay started short of subscribers on'] = \
                 ', '.join(self.replay_started_without) or 'none'
         if self.bag_notes:
-            values['bag read as far as it goes'] = ' | '.join(self.bag_notes)
+            values['bag notes (what reading it worked around)'] = ' | '.join(self.bag_notes)
         if self.source == 'bag':
             zero = sum(getattr(reader, 'zero_stamped', 0) for reader in self.readers)
             values[ZERO_STAMPED] = zero
