@@ -196,8 +196,14 @@ def data_extent(stream, size, block=1 << 16):
     return 0
 
 
-def _whole_chunk(record, decompress):
-    """Return whether a chunk record's content decompresses, checks and holds whole records."""
+def _chunk_check(record, decompress):
+    """
+    Return ``(whole, checked)`` of a chunk record's content.
+
+    ``whole``: it decompresses, checks and holds whole records; ``checked``: compressed or
+    with a checksum, so that ``whole`` also shows no byte of it is missing (an uncompressed
+    chunk without a checksum, rosbag2's default, shows nothing of the kind).
+    """
     try:
         (_, _, size, crc), offset = struct.unpack_from('<QQQI', record, 0), 28
         (length,) = struct.unpack_from('<I', record, offset)
@@ -206,20 +212,21 @@ def _whole_chunk(record, decompress):
         (compressed,) = struct.unpack_from('<Q', record, offset)
         data = record[offset + 8:offset + 8 + compressed]
         if len(data) != compressed:
-            return False
+            return False, False
         raw = decompress(bytes(data), compression, size, crc)
     except Exception:               # noqa: B902 - any failure: not a chunk that can be read
-        return False
+        return False, False
+    checked = bool(compression) or bool(crc)
     position = 0
     while position < len(raw):
         if position + 9 > len(raw):
-            return False
+            return False, checked
         opcode, length = raw[position], int.from_bytes(raw[position + 1:position + 9], 'little')
         if opcode not in (0x03, 0x04, 0x05) or (opcode == 0x05 and length < 22) or \
                 position + 9 + length > len(raw):
-            return False
+            return False, checked
         position += 9 + length
-    return True
+    return True, checked
 
 
 def complete_records_end(stream, start, size, decompress=None):
@@ -227,15 +234,18 @@ def complete_records_end(stream, start, size, decompress=None):
     Return ``(end, cut)`` of an MCAP data section read from ``start`` of a ``size``-byte file.
 
     ``end``: the offset after the last complete top-level record (records are an opcode, a
-    little-endian uint64 length, then that many bytes), before a ``data end`` record, before
-    the run of zeros a file system may leave at the end (``data_extent``; a record reaching
-    into it was not written whole), or before a record that cannot be whole: an unknown
-    opcode, a message record shorter than its fixed fields, or (with ``decompress``, rosbags'
-    chunk decoder) a chunk that does not decompress, fails its checksum or holds a broken
-    record. ``cut``: the name of the record left out at ``end``, or None when the data
-    section ends there.
+    little-endian uint64 length, then that many bytes), before a ``data end`` record or zero
+    bytes, or before a record that cannot be whole: an unknown opcode, a message record
+    shorter than its fixed fields, or (with ``decompress``, rosbags' chunk decoder) a chunk
+    that does not decompress, fails its checksum or holds a broken record. A file system can
+    leave the blocks a crash did not write as zeros up to the file's recorded size
+    (``data_extent``): a record reaching into that run of zeros is taken as not written,
+    unless it is a chunk whose compression or checksum shows it whole (an lz4 chunk ends in
+    four zero bytes; a message ending in zeros, e.g. a camera_info's ``do_rectify`` false,
+    before the run is left out: one message, never a corrupt one). ``cut``: the name of the
+    record left out at ``end``, or None when the data section ends there.
     """
-    size = min(size, data_extent(stream, size))
+    extent = min(size, data_extent(stream, size))
     position = start
     while position + 9 <= size:
         stream.seek(position)
@@ -244,14 +254,18 @@ def complete_records_end(stream, start, size, decompress=None):
         if opcode == 0 or opcode == _MCAP_DATA_END:
             return position, None
         name = _MCAP_RECORDS.get(opcode)
-        if name is None or position + 9 + length > size:
+        end = position + 9 + length
+        if name is None or end > size:
             return position, name or f'unknown record 0x{opcode:02x}'
         if opcode == 0x05 and length < 22:
             return position, 'message'
-        if opcode == 0x06 and decompress is not None and \
-                not _whole_chunk(stream.read(length), decompress):
-            return position, 'chunk'
-        position += 9 + length
+        if opcode == 0x06 and decompress is not None:
+            whole, checked = _chunk_check(stream.read(length), decompress)
+            if not whole or (end > extent and not checked):
+                return position, 'chunk'
+        elif end > extent:
+            return position, name
+        position = end
     return position, None if position == size else 'record header'
 
 
@@ -326,8 +340,11 @@ def _reader_class():
         def _open(self):
             try:
                 super()._open()
-            except ReaderError as error:
-                if 'end magic' not in str(error):
+            except (ReaderError, OSError) as error:
+                # A file cut before its footer could be whole (37 bytes) fails the seek.
+                short = isinstance(error, OSError) and self.data_start and \
+                    self.bio.seek(0, 2) < self.data_start + 37
+                if 'end magic' not in str(error) and not short:
                     raise
                 self._open_cut_short()
 

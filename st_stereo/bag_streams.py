@@ -26,9 +26,10 @@ def pair_namespace(path, topics, namespace=''):
     ``left/camera_info``, ``right/camera_info`` and ``pair_info``. ``namespace`` (the driver's
     ``bag_namespace``): '' takes the bag's one prefix; a bag of several rigs (``/rig1/
     stereo/``, ``/rig2/stereo/``) then raises a ValueError naming them (their frames were
-    merged before); ``/rig2/stereo`` (slashes optional) chooses one, ``/`` the root namespace,
-    and a prefix as listed (``/cam_``) itself. A ValueError names what the bag has when
-    nothing matches.
+    merged before), unless one of them is a namespace's own pair (``/stereo/`` is taken over
+    ``/stereo/ir_``); ``/rig2/stereo`` (slashes optional) chooses one, ``/`` the root
+    namespace, and a prefix as listed (``/cam_``) itself. A ValueError names what the bag has
+    when nothing matches.
     """
     prefixes = image_pair_prefixes(topics)
     if namespace:
@@ -41,6 +42,11 @@ def pair_namespace(path, topics, namespace=''):
                          f'{sorted(topics)}')
     if len(prefixes) == 1:
         return prefixes[0]
+    # /stereo/left and /stereo/ir_left: the namespace's own pair, as before prefixes (the
+    # other by bag_namespace /stereo/ir_).
+    namespaces = [prefix for prefix in prefixes if prefix.endswith('/')]
+    if len(namespaces) == 1:
+        return namespaces[0]
     if not prefixes:
         raise ValueError(f'{path}: expected topics ending in left/image_raw and '
                          f'right/image_raw, found {sorted(topics)}')

@@ -759,6 +759,10 @@ def test_a_bag_of_two_rigs_is_replayed_one_namespace_at_a_time(tmp_path, capsys)
     # Camera names rather than namespaces (read as before namespaces were told apart).
     cameras = ['/cam_left/image_raw', '/cam_right/image_raw', '/cam_left/camera_info']
     assert pair_namespace(bag, cameras) == '/cam_'
+    both = ['/stereo/left/image_raw', '/stereo/right/image_raw', '/stereo/ir_left/image_raw',
+            '/stereo/ir_right/image_raw']
+    assert pair_namespace(bag, both) == '/stereo/'       # the namespace's own pair
+    assert pair_namespace(bag, both, '/stereo/ir_') == '/stereo/ir_'
     levels = []
     with ros_nodes() as (context, executor, add):
         listener = add(Node('listener', context=context, namespace='stereo'))
@@ -939,3 +943,28 @@ def test_messages_in_a_write_ahead_log_are_read(tmp_path, metadata):
     assert {f.name: f.read_bytes() for f in bag.iterdir()} == before    # not written
     with sqlite3.connect(f'file:{database}?mode=ro', uri=True) as connection:
         assert connection.execute('SELECT count(*) FROM messages').fetchone() == (40,)
+
+
+def mcap_record_ends(blob):
+    """Offsets after each top-level record of a whole MCAP file (magic, then op + length)."""
+    ends, position = [], 8
+    while position + 9 <= len(blob) - 8:
+        position += 9 + int.from_bytes(blob[position + 1:position + 9], 'little')
+        ends.append(position)
+    return ends
+
+
+@pytest.mark.parametrize('chunking', ['zstd', 'lz4', 'none', 'unchunked'])
+def test_a_file_cut_at_a_record_boundary_keeps_its_last_record(tmp_path, chunking):
+    # A writer killed between two records: its last chunk is whole. An lz4 chunk ends in four
+    # zero bytes (its end mark), which the zero-tail rule first took for blocks never written.
+    path = tmp_path / 'whole.mcap'
+    write_mcap(path, chunking, pairs=12)
+    whole = path.read_bytes()
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    for end in mcap_record_ends(whole):
+        cut = whole[:end]
+        (bag / 'rec_0.mcap').write_bytes(cut)
+        got, _ = read_by_topic(bag)
+        assert got == mcap_reference(cut), end
