@@ -157,3 +157,20 @@ def replay_through_matcher(bag, rate=0.5, use_sim_time=False, keep_latest=True):
         for node in nodes + [player]:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def subscribe_replay_topics(node):
+    """
+    Subscribe ``node`` (in the driver's namespace) to every topic a replay waits for.
+
+    A bag or capture replay waits up to ``replay_wait`` (5 s) for a subscriber on each of
+    left/right image_raw and camera_info: a test listening to one of them alone paid those
+    5 s. No-op callbacks; QoS as the driver offers (sensor data).
+    """
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CameraInfo, Image
+    for side in ('left', 'right'):
+        node.create_subscription(Image, f'{side}/image_raw', lambda msg: None,
+                                 qos_profile_sensor_data)
+        node.create_subscription(CameraInfo, f'{side}/camera_info', lambda msg: None,
+                                 qos_profile_sensor_data)

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from ros_helpers import Clouds, new_context, replay_through_matcher, ros_nodes, spin_for, \
-    spin_until_finished
+    spin_until_finished, subscribe_replay_topics
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_typestore, Stores
@@ -450,7 +450,8 @@ def _replayed_by_the_driver(bag):
     """Return the driver after it read ``bag``, its pairs status and its left camera's."""
     with ros_nodes() as (context, executor, add):
         driver = add(DriverNode(context=context, parameter_overrides=[
-            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+            Parameter('replay_wait', value=0.0)]))       # nothing listens: no 5 s wait
         spin_until_finished(executor, driver, 30.0)
         return driver, driver._pairs_status(time.monotonic()), \
             driver._camera_status(0, time.monotonic())
@@ -535,6 +536,7 @@ def test_a_bags_stamps_are_published_to_the_nanosecond(tmp_path):
             Image, 'left/image_raw',
             lambda msg: received.append(msg.header.stamp.sec * 1_000_000_000 +
                                         msg.header.stamp.nanosec), qos_profile_sensor_data)
+        subscribe_replay_topics(listener)
         spin_for(executor, 0.5)
         driver = add(DriverNode(context=context, parameter_overrides=[
             Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
@@ -676,7 +678,8 @@ def test_the_driver_replays_a_recording_that_did_not_end_and_says_so(tmp_path):
     assert pairs > 40
     with ros_nodes() as (context, executor, add):
         driver = add(DriverNode(context=context, parameter_overrides=[
-            Parameter('source', value='bag'), Parameter('bag', value=str(bag))]))
+            Parameter('source', value='bag'), Parameter('bag', value=str(bag)),
+            Parameter('replay_wait', value=0.0), Parameter('replay_rate', value=0.0)]))
         spin_until_finished(executor, driver, 60.0)
         status = driver._pairs_status(time.monotonic())
     assert driver.published == pairs
@@ -708,6 +711,7 @@ def test_images_stamped_zero_are_paired_by_the_time_the_recorder_received_them(t
     received = []
     with ros_nodes() as (context, executor, add):
         listener = add(Node('listener', context=context, namespace='stereo'))
+        subscribe_replay_topics(listener)
         listener.create_subscription(
             Image, 'left/image_raw',
             lambda msg: received.append(msg.header.stamp.sec * 1_000_000_000 +
@@ -766,6 +770,7 @@ def test_a_bag_of_two_rigs_is_replayed_one_namespace_at_a_time(tmp_path, capsys)
     levels = []
     with ros_nodes() as (context, executor, add):
         listener = add(Node('listener', context=context, namespace='stereo'))
+        subscribe_replay_topics(listener)
         listener.create_subscription(
             Image, 'left/image_raw', lambda msg: levels.append(
                 int(np.median(msg_to_image(msg, 'mono16')))), qos_profile_sensor_data)
@@ -797,6 +802,7 @@ def test_a_bag_replays_at_replay_rate_times_its_recorded_pace(tmp_path):
     arrivals = []
     with ros_nodes() as (context, executor, add):
         listener = add(Node('listener', context=context, namespace='stereo'))
+        subscribe_replay_topics(listener)
         listener.create_subscription(Image, 'left/image_raw',
                                      lambda msg: arrivals.append(time.monotonic()),
                                      qos_profile_sensor_data)

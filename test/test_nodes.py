@@ -13,7 +13,8 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from ros_helpers import GatedMatch, ideal_camera_info, keep_statuses, spin_until
+from ros_helpers import GatedMatch, ideal_camera_info, keep_statuses, spin_until, \
+    subscribe_replay_topics
 from scipy import ndimage
 from sensor_msgs.msg import Image, PointCloud2
 from st_stereo.core.calibration.files import CalibrationError
@@ -802,6 +803,7 @@ def test_a_capture_replays_at_its_recorded_pace_times_replay_rate(ros, tmp_path,
     context, executor, add = ros
     arrivals = []
     listener = add(Node('images', context=context, namespace='stereo'))
+    subscribe_replay_topics(listener)
     listener.create_subscription(Image, 'left/image_raw',
                                  lambda msg: arrivals.append(time.monotonic()), 50)
     driver = add(DriverNode(context=context, parameter_overrides=[

@@ -16,7 +16,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 import ros_helpers
-from ros_helpers import GatedMatch, new_context, spin_for, spin_until, spin_until_finished
+from ros_helpers import GatedMatch, new_context, spin_for, spin_until, spin_until_finished, \
+    subscribe_replay_topics
 from st_stereo.lepton.pairing import pair_info_values, pair_times_from_values, stamp_text
 from st_stereo.nodes import diagnostics
 from st_stereo.nodes.driver_node import DriverNode
@@ -79,6 +80,7 @@ def replay_with_driver(bag):
     """Run the driver's bag source over ``bag``; return its pair_info messages and counters."""
     context, executor = new_context()
     listener = PairInfoListener(context)
+    subscribe_replay_topics(listener)       # the replay starts once they are discovered
     driver = DriverNode(context=context, parameter_overrides=[
         Parameter('source', value='bag'), Parameter('bag', value=str(bag))])
     try:
