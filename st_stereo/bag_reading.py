@@ -147,8 +147,7 @@ def _nonempty(file):
 def _has_metadata(directory):
     # rosbag2 writes metadata.yaml when the recording ends: a crash while writing it can
     # leave it empty, which is no more than a missing one.
-    metadata = directory / 'metadata.yaml'
-    return metadata.exists() and metadata.stat().st_size > 0
+    return _nonempty(directory / 'metadata.yaml')
 
 
 def _lone_storage_file(directory):

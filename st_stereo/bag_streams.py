@@ -55,7 +55,7 @@ def pair_namespace(path, topics, namespace=''):
                      f'--bag-namespace of calibrate and rig-pose)')
 
 
-def raw_image_messages(path, zero_stamped=None, namespace=''):
+def raw_image_messages(path, zero_stamped=None, namespace='', notes=None):
     """
     Yield ``(side, stamp_ns, msg)`` of a bag's left/image_raw and right/image_raw topics.
 
@@ -65,7 +65,8 @@ def raw_image_messages(path, zero_stamped=None, namespace=''):
     ``stamp_ns`` is the image's header stamp; an image stamped 0 (a camera node that never set
     it) gets the time the recorder received it instead, and is counted in ``zero_stamped``
     (``{side: count}``) when given: without it every frame had the same time, and the two
-    cameras' frames could not be paired.
+    cameras' frames could not be paired. ``notes`` (a list), when given, gets what reading
+    the bag worked around (``open_bag``'s notes).
     """
     from rosbags.typesys import get_typestore, Stores
 
@@ -73,6 +74,8 @@ def raw_image_messages(path, zero_stamped=None, namespace=''):
     path = pathlib.Path(path)
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
+    if notes is not None:
+        notes.extend(reader.notes)
     try:
         chosen = pair_namespace(path, reader.topics, namespace)
         wanted = {c.id: side for c in reader.connections for side in SIDES
@@ -92,7 +95,7 @@ def raw_image_messages(path, zero_stamped=None, namespace=''):
         reader.close()
 
 
-def recorded_pair_info(path, namespace=''):
+def recorded_pair_info(path, namespace='', notes=None):
     """
     Return ``{stamp_ns: {key: value}}`` of a bag's ``pair_info`` topic (empty without one).
 
@@ -100,6 +103,7 @@ def recorded_pair_info(path, namespace=''):
     carries both cameras' acquisition stamps and the pair's skew: a bag whose images share the
     pair's stamp keeps the skew only there. Topics ending in ``pair_info`` of another type are
     ignored, and so are those of another namespace than the image pair's (``pair_namespace``).
+    ``notes`` (a list), when given, gets what reading the bag worked around.
     """
     from rosbags.typesys import get_typestore, Stores
 
@@ -107,6 +111,8 @@ def recorded_pair_info(path, namespace=''):
     path = pathlib.Path(path)
     typestore = get_typestore(Stores.ROS2_JAZZY)
     reader = open_bag(path)
+    if notes is not None:
+        notes.extend(reader.notes)
     out = {}
     try:
         chosen = pair_namespace(path, reader.topics, namespace)

@@ -137,7 +137,8 @@ class RecordedPairInfo:
     TOLERANCE_NS = 1000
 
     def __init__(self, path, namespace=''):
-        self.by_stamp = recorded_pair_info(path, namespace)
+        self.notes = []                  # what reading the bag worked around (open_bag)
+        self.by_stamp = recorded_pair_info(path, namespace, self.notes)
         self.stamps = sorted(self.by_stamp)
         self.counts = {'pairs with recorded pair_info': 0,
                        'pairs without recorded pair_info (skew of the image stamps)': 0,

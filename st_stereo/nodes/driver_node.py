@@ -213,15 +213,14 @@ class DriverNode(Node):
             if not self._value('bag'):
                 raise ValueError('source bag: parameter bag (the rosbag2 directory or file to '
                                  'replay) is empty')
-            from st_stereo.bag_reading import bag_notes
-            # A recording that did not end is read as far as it goes: said once, and kept in
-            # the diagnostics.
-            self.bag_notes = bag_notes(self._value('bag'))
-            for note in self.bag_notes:
-                self.get_logger().warning(note)
             # Images of a recorded pair share its stamp: the skew is only in its pair_info.
             namespace = self._value('bag_namespace')
             self.recorded_pair_info = RecordedPairInfo(self._value('bag'), namespace)
+            # A recording that did not end is read as far as it goes: said once, and kept in
+            # the diagnostics.
+            self.bag_notes = self.recorded_pair_info.notes
+            for note in self.bag_notes:
+                self.get_logger().warning(note)
             sides = open_bag_sides(self._value('bag'), namespace)
             if self._value('bag_camera_info'):
                 self._use_recorded_calibrations(self._value('bag'), namespace)

@@ -57,11 +57,11 @@ BAG_NAMESPACE_HELP = ('a bag of several rigs: the namespace of the image pair to
                       '/rig2/stereo (default: the bag must hold one)')
 
 
-def bag_frames(path, namespace=''):
+def bag_frames(path, namespace='', notes=None):
     """Every raw left and right image of a rosbag2: ``{side: {stamp_ns: pixels}}``."""
     frames = {'left': {}, 'right': {}}
     try:
-        for side, stamp, msg in raw_image_messages(path, namespace=namespace):
+        for side, stamp, msg in raw_image_messages(path, namespace=namespace, notes=notes):
             if msg.encoding not in COUNT_ENCODINGS + ('mono8',):
                 raise CalibrationInputError(f'{path}: {side}/image_raw: encoding '
                                             f'{msg.encoding!r}, expected mono16, 16UC1 or '
@@ -79,9 +79,9 @@ def bag_frames(path, namespace=''):
 
 def pairs_from_bag(path, namespace=''):
     """Pairs of a rosbag2's raw image topics with identical stamps (none: an error says why)."""
-    from st_stereo.bag_reading import bag_notes
-    frames = bag_frames(path, namespace)
-    for note in bag_notes(path):        # a recording that did not end: read as far as it goes
+    notes = []
+    frames = bag_frames(path, namespace, notes)
+    for note in notes:                  # a recording that did not end: read as far as it goes
         print(f'calibrate: {note}', file=sys.stderr)
     stamps = sorted(set(frames['left']) & set(frames['right']))
     if not stamps and frames['left'] and frames['right']:
